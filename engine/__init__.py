@@ -1,0 +1,10 @@
+"""ragdoll's physics engine: batched rigid bodies, joints and contacts on numpy."""
+from .builder import WORLD, SceneBuilder, STANDARD_GRAVITY, GRAVITATIONAL_CONSTANT
+from .control import Control
+from .errors import SceneError, SimulationError
+from .materials import Material, MaterialTable
+from .model import Model
+from .settings import Settings
+from .shapes import Box, Capsule, Plane, Sphere
+from .state import Event, State
+from .step import simulate, step

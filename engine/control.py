@@ -1,0 +1,73 @@
+"""Per-step inputs from outside the scene: motor torques and applied forces.
+
+Every array has the leading world axis. Inputs are checked before they touch
+the state: a wrong shape, NaN or infinity raises ``ValueError``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .math3d import cross
+
+
+@dataclass
+class Control:
+    """Inputs for one step of W worlds.
+
+    motor: (W, A) torques in N·m, one per actuated joint axis (the model's
+        ``actuators``), clamped to each axis's maximum torque.
+    force: (W, N, 3) world-frame forces in N applied at the body centres.
+    torque: (W, N, 3) world-frame torques in N·m.
+    """
+
+    motor: np.ndarray | None = None
+    force: np.ndarray | None = None
+    torque: np.ndarray | None = None
+
+    @classmethod
+    def zeros(cls, model, num_worlds, motor=True, force=False):
+        return cls(
+            motor=np.zeros((num_worlds, model.num_actuators)) if motor else None,
+            force=np.zeros((num_worlds, model.num_bodies, 3)) if force else None,
+            torque=np.zeros((num_worlds, model.num_bodies, 3)) if force else None,
+        )
+
+    def add_force_at_point(self, model, body, force, point, positions):
+        """Add a world-frame force (N) at a world point (m) on ``body``:
+        a force at the centre plus the torque (p - x) × F.
+
+        force, point: (W, 3); positions: the state's (W, N, 3) positions.
+        """
+        i = model.body_index(body)
+        W = positions.shape[0]
+        if self.force is None:
+            self.force = np.zeros((W, model.num_bodies, 3))
+        if self.torque is None:
+            self.torque = np.zeros((W, model.num_bodies, 3))
+        force = np.broadcast_to(np.asarray(force, dtype=float), (W, 3))
+        point = np.broadcast_to(np.asarray(point, dtype=float), (W, 3))
+        self.force[:, i] += force
+        self.torque[:, i] += cross(point - positions[:, i], force)
+
+    def validate(self, model, num_worlds):
+        """Raise ValueError for a wrong shape or a non-finite entry."""
+        expected = {
+            "motor": (num_worlds, model.num_actuators),
+            "force": (num_worlds, model.num_bodies, 3),
+            "torque": (num_worlds, model.num_bodies, 3),
+        }
+        for name, shape in expected.items():
+            value = getattr(self, name)
+            if value is None:
+                continue
+            arr = np.asarray(value)
+            if arr.shape != shape:
+                raise ValueError(f"control.{name} must have shape {shape}, got {arr.shape}")
+            if not np.issubdtype(arr.dtype, np.number):
+                raise ValueError(f"control.{name} must be numeric, got dtype {arr.dtype}")
+            if not np.all(np.isfinite(arr)):
+                bad = np.argwhere(~np.isfinite(arr))[0]
+                raise ValueError(f"control.{name} has a NaN or infinite entry at index {tuple(int(i) for i in bad)}")

@@ -1,0 +1,88 @@
+"""Accuracy and solver settings of a model: the knobs of the accuracy report.
+
+All are plain values on a frozen dataclass; ``Model.with_settings(**changes)``
+gives a model with other settings and the same scene.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields
+
+INTEGRATORS = ("symplectic", "euler", "rk4")
+SOLVERS = ("soft_step", "thesis")
+
+
+@dataclass(frozen=True)
+class Settings:
+    """Step settings.
+
+    dt: seconds per step.
+    substeps: substeps per step; each integrates, solves and relaxes once.
+    iterations: constraint sweeps per substep in the biased solve.
+    relax_iterations: constraint sweeps per substep in the relax (unbiased) solve.
+    integrator: "symplectic" (semi-implicit Euler, default), "euler" (the
+        thesis's explicit Euler, equations 4 and 5), or "rk4" (classical
+        Runge-Kutta on the force effects of free motion).
+    solver: "soft_step" (Catto's soft step, default) or "thesis" (sequential
+        impulses with mass-ratio split of penetration, the baseline).
+    joint_hertz, joint_damping_ratio: softness of joint constraints (Hz, -);
+        ``joint_hertz = inf`` makes joints rigid (Baumgarte-free, relax only).
+    contact_hertz, contact_damping_ratio: softness of contacts; the contact
+        stiffness used is min(contact_hertz, substep rate / 8) as in Box2D v3.
+    max_push_out: m/s, the largest speed the position bias may add.
+    restitution_threshold: m/s, closing speeds below it do not bounce.
+    linear_slop: m, penetration allowed before position correction pushes out.
+    speculative_distance: m, contacts are created for gaps up to this distance
+        plus the distance travelled in one step.
+    check_finite: raise ``SimulationError`` naming the world, body and step
+        when a state turns non-finite (else only flag it).
+    """
+
+    dt: float = 1.0 / 60.0
+    substeps: int = 4
+    iterations: int = 1
+    relax_iterations: int = 1
+    integrator: str = "symplectic"
+    solver: str = "soft_step"
+    joint_hertz: float = 60.0
+    joint_damping_ratio: float = 2.0
+    contact_hertz: float = 30.0
+    contact_damping_ratio: float = 10.0
+    max_push_out: float = 3.0
+    restitution_threshold: float = 1.0
+    linear_slop: float = 0.005
+    speculative_distance: float = 0.02
+    check_finite: bool = True
+
+    def validate(self) -> None:
+        for f in fields(self):
+            v = getattr(self, f.name)
+            if isinstance(v, bool) or isinstance(v, str):
+                continue
+            if not isinstance(v, (int, float)) or math.isnan(v):
+                raise ValueError(f"settings: {f.name} must be a number, got {v!r}")
+        if not (self.dt > 0 and math.isfinite(self.dt)):
+            raise ValueError(f"settings: dt must be a positive finite number of seconds, got {self.dt!r}")
+        for name in ("substeps", "iterations"):
+            v = getattr(self, name)
+            if int(v) != v or v < 1:
+                raise ValueError(f"settings: {name} must be an integer >= 1, got {v!r}")
+        if int(self.relax_iterations) != self.relax_iterations or self.relax_iterations < 0:
+            raise ValueError(f"settings: relax_iterations must be an integer >= 0, got {self.relax_iterations!r}")
+        if self.integrator not in INTEGRATORS:
+            raise ValueError(f"settings: unknown integrator {self.integrator!r}; choose one of {INTEGRATORS}")
+        if self.solver not in SOLVERS:
+            raise ValueError(f"settings: unknown solver {self.solver!r}; choose one of {SOLVERS}")
+        for name in ("joint_hertz", "contact_hertz"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"settings: {name} must be > 0 (inf for rigid), got {getattr(self, name)!r}")
+        for name in ("joint_damping_ratio", "contact_damping_ratio", "max_push_out",
+                     "restitution_threshold", "linear_slop", "speculative_distance"):
+            v = getattr(self, name)
+            if not (v >= 0 and math.isfinite(v)):
+                raise ValueError(f"settings: {name} must be a finite number >= 0, got {v!r}")
+
+    @property
+    def substep_dt(self) -> float:
+        return self.dt / self.substeps

@@ -1,0 +1,134 @@
+"""Batched dynamic state: every array has a leading world axis of length W.
+
+A state holds positions (W, N, 3) in m, orientations (W, N, 4) as unit
+quaternions (w, x, y, z), linear velocities (W, N, 3) in m/s and world-frame
+angular velocities (W, N, 3) in rad/s, a step counter per world, broken-flags
+of springs and joints, and the solver's warm-start caches. One world (W = 1)
+is just the smallest batch.
+
+States are plain containers: ``copy``, ``select`` (a subset of worlds, as a
+new state), ``assign`` (write another state into a subset of worlds) and
+``concatenate`` are all array operations along the world axis.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Event:
+    """Something that happened during a step: a spring or joint broke.
+
+    kind: "spring_broken" or "joint_broken"; name: the item's name;
+    world: world index; step: the step count at which it happened (the step
+    that produced it is ``step``; time = step * dt seconds).
+    """
+
+    kind: str
+    name: str
+    world: int
+    step: int
+    time: float
+
+
+#: Arrays every state carries, with their trailing shape relative to the model.
+CORE_FIELDS = ("position", "orientation", "velocity", "angular_velocity", "step")
+
+
+@dataclass
+class State:
+    """Dynamic part of W worlds. Arrays are indexed [world, item, ...]."""
+
+    arrays: dict = field(default_factory=dict)
+    events: list = field(default_factory=list)
+
+    # Named access to the arrays -------------------------------------------------
+    def __getattr__(self, name):
+        arrays = self.__dict__.get("arrays")
+        if arrays is not None and name in arrays:
+            return arrays[name]
+        raise AttributeError(f"State has no field {name!r}")
+
+    def __setattr__(self, name, value):
+        if name in ("arrays", "events"):
+            object.__setattr__(self, name, value)
+        elif name in self.arrays:
+            value = np.asarray(value, dtype=self.arrays[name].dtype)
+            if value.shape != self.arrays[name].shape:
+                raise ValueError(
+                    f"state.{name} has shape {self.arrays[name].shape}, cannot assign shape {value.shape}"
+                )
+            self.arrays[name][...] = value
+        else:
+            raise AttributeError(f"State has no field {name!r}")
+
+    @property
+    def num_worlds(self) -> int:
+        return self.arrays["position"].shape[0]
+
+    def copy(self) -> "State":
+        return State({k: v.copy() for k, v in self.arrays.items()}, list(self.events))
+
+    def select(self, worlds) -> "State":
+        """A new state holding only ``worlds`` (indices, slice or boolean mask)."""
+        idx = _world_index(worlds, self.num_worlds)
+        return State({k: v[idx].copy() for k, v in self.arrays.items()},
+                     [e for e in self.events if _contains(idx, e.world, self.num_worlds)])
+
+    def assign(self, worlds, other: "State") -> None:
+        """Write ``other``'s worlds into ``worlds`` of this state in place.
+
+        ``other`` has either as many worlds as are selected, or one world,
+        which is then copied into each selected world.
+        """
+        idx = _world_index(worlds, self.num_worlds)
+        for k, v in self.arrays.items():
+            if k not in other.arrays:
+                raise ValueError(f"cannot assign: the other state lacks field {k!r}")
+            v[idx] = other.arrays[k]
+
+    def nonfinite_worlds(self) -> np.ndarray:
+        """Indices of worlds with any NaN or infinite position or velocity."""
+        bad = np.zeros(self.num_worlds, dtype=bool)
+        for k in ("position", "orientation", "velocity", "angular_velocity"):
+            a = self.arrays[k]
+            bad |= ~np.isfinite(a.reshape(a.shape[0], -1).sum(axis=1))
+        return np.flatnonzero(bad)
+
+    @staticmethod
+    def concatenate(states) -> "State":
+        states = list(states)
+        keys = states[0].arrays.keys()
+        return State({k: np.concatenate([s.arrays[k] for s in states], axis=0) for k in keys}, [])
+
+    def equal(self, other: "State") -> bool:
+        """Bit-for-bit equality of every array."""
+        return self.arrays.keys() == other.arrays.keys() and all(
+            np.array_equal(v, other.arrays[k], equal_nan=True) for k, v in self.arrays.items()
+        )
+
+    def nbytes(self) -> int:
+        return sum(v.nbytes for v in self.arrays.values())
+
+
+def _world_index(worlds, num_worlds):
+    if isinstance(worlds, slice):
+        return worlds
+    arr = np.asarray(worlds)
+    if arr.dtype == bool:
+        if arr.shape != (num_worlds,):
+            raise ValueError(f"world mask must have shape ({num_worlds},), got {arr.shape}")
+        return np.flatnonzero(arr)
+    arr = arr.astype(np.int64).reshape(-1)
+    if arr.size and (arr.min() < -num_worlds or arr.max() >= num_worlds):
+        raise IndexError(f"world index out of range for {num_worlds} worlds: {arr}")
+    return arr
+
+
+def _contains(idx, world, num_worlds):
+    if isinstance(idx, slice):
+        return world in range(*idx.indices(num_worlds))
+    return world in set(int(i) for i in idx)

@@ -1,0 +1,120 @@
+"""One step of W worlds: the pipeline assembled from the effects a scene declares.
+
+::
+
+    step(model, state, control) -> state
+      collide      contact candidates and manifolds, once per step (if contacts)
+      prepare      constraint anchors and effective masses (if joints/contacts)
+      substeps     integrate velocities (force effects); implicit velocity effects;
+                   warm start + biased solve; integrate positions; relax solve
+      restitution  once, from the closing velocities before the solve
+      end of step  breaking springs and joints, events, non-finite check
+
+The state is advanced in place and returned. Nothing here loops over worlds,
+bodies, contacts or constraints of one colour.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .control import Control
+from .errors import SimulationError
+from .integrators import explicit_euler, integrate_positions, integrate_velocities, runge_kutta4
+from .math3d import quat_integrate
+
+
+def _check_control(model, state, control):
+    if control is None:
+        return None
+    if not isinstance(control, Control):
+        raise ValueError(f"control must be an engine.Control or None, got {type(control).__name__}")
+    control.validate(model, state.num_worlds)
+    return control
+
+
+def step(model, state, control: Control | None = None):
+    """Advance every world of ``state`` by ``model.settings.dt`` seconds, in place.
+
+    control: motor torques and applied forces for this step (validated before
+    anything changes: a wrong shape, NaN or infinity raises ValueError).
+    Events of this step (broken springs and joints) are in ``state.events``.
+    Raises SimulationError naming world, body and step when a world's state
+    turns non-finite and ``settings.check_finite`` is set.
+    """
+    control = _check_control(model, state, control)
+    s = model.settings
+    h = s.dt / s.substeps
+    events = []
+    constraints = [c for c in (model.contacts, model.joints) if c is not None and c.has_constraints]
+    for c in constraints:
+        c.begin_step(model, state, h)
+    for _ in range(s.substeps):
+        if s.integrator == "symplectic":
+            integrate_velocities(model, state, control, h)
+            for effect in model.velocity_hooks:
+                effect.velocity(model, state, h)
+            _solve(model, state, constraints, h, use_bias=True)
+            integrate_positions(model, state, h)
+            _solve(model, state, constraints, h, use_bias=False)
+        elif s.integrator == "euler":
+            explicit_euler(model, state, control, h)
+            for effect in model.velocity_hooks:
+                effect.velocity(model, state, h)
+            _solve(model, state, constraints, h, use_bias=True)
+            _solve(model, state, constraints, h, use_bias=False)
+        else:
+            runge_kutta4(model, state, control, h)
+            v1, w1 = state.velocity.copy(), state.angular_velocity.copy()
+            for effect in model.velocity_hooks:
+                effect.velocity(model, state, h)
+            _solve(model, state, constraints, h, use_bias=True)
+            # Constraint impulses move the positions by h Δv beyond the RK4 flow.
+            state.position += h * (state.velocity - v1)
+            state.orientation[...] = quat_integrate(state.orientation, state.angular_velocity - w1, h)
+            _solve(model, state, constraints, h, use_bias=False)
+    for c in constraints:
+        c.end_step(model, state, h, events)
+    for effect in model.end_hooks:
+        effect.end_of_step(model, state, events)
+    state.step += 1
+    state.events = events
+    if s.check_finite:
+        bad = state.nonfinite_worlds()
+        if bad.size:
+            raise _nonfinite_error(model, state, bad)
+    return state
+
+
+def _solve(model, state, constraints, h, use_bias):
+    if not constraints:
+        return
+    if use_bias:
+        for c in constraints:
+            c.warm_start(model, state)
+    iterations = model.settings.iterations if use_bias else model.settings.relax_iterations
+    for _ in range(iterations):
+        for c in constraints:
+            c.solve(model, state, h, use_bias)
+
+
+def _nonfinite_error(model, state, bad_worlds):
+    w = int(bad_worlds[0])
+    per_body = np.zeros(model.num_bodies, dtype=bool)
+    for k in ("position", "orientation", "velocity", "angular_velocity"):
+        a = state.arrays[k][w]
+        per_body |= ~np.isfinite(a).all(axis=-1)
+    bodies = [model.body_names[i] for i in np.flatnonzero(per_body)]
+    step_no = int(state.step[w])
+    return SimulationError(
+        f"world {w} turned non-finite at step {step_no} (t = {step_no * model.settings.dt:.6g} s) "
+        f"in bodies {bodies}; {bad_worlds.size} world(s) affected: {bad_worlds[:10].tolist()}",
+        worlds=bad_worlds.tolist(), bodies=bodies, step=step_no,
+    )
+
+
+def simulate(model, state, steps: int, control=None):
+    """Step ``steps`` times with the same control; returns the state."""
+    for _ in range(int(steps)):
+        step(model, state, control)
+    return state
