@@ -54,8 +54,6 @@ def accumulate(model, view, control):
             acc.torque += control.torque
         if control.motor is not None and model.joints is not None:
             model.joints.motor_torques(model, view, control.motor, acc)
-    if model.joints is not None and model.joints.has_passive:
-        model.joints.passive_torques(model, view, acc)
     lin = acc.accel + acc.force * model.inv_mass[:, None]
     ang = inv_inertia_apply(model, view.orientation, acc.torque)
     return lin, ang
@@ -87,8 +85,7 @@ def rotate_free(model, q, omega, h):
 
 def integrate_velocities(model, state, control, h):
     """Semi-implicit velocity update v += h a(x, v), ω += h α."""
-    view = BodyView(state.position, state.orientation, state.velocity, state.angular_velocity,
-                    state.arrays.get("spring_broken"))
+    view = BodyView.of(state)
     lin, ang = accumulate(model, view, control)
     state.velocity += h * lin
     state.angular_velocity += h * ang
@@ -105,8 +102,7 @@ def integrate_positions(model, state, h):
 def explicit_euler(model, state, control, h):
     """Thesis equations 4 and 5: positions from the old velocities, velocities
     from the old forces; ω̇ = I⁻¹(τ - ω × Iω) explicitly."""
-    view = BodyView(state.position.copy(), state.orientation.copy(), state.velocity.copy(),
-                    state.angular_velocity.copy(), state.arrays.get("spring_broken"))
+    view = BodyView.of(state, copy=True)
     lin, ang = accumulate(model, view, control)
     w = view.angular_velocity
     gyro = inv_inertia_apply(model, view.orientation, cross(w, inertia_apply(model, view.orientation, w)))
@@ -129,13 +125,13 @@ def runge_kutta4(model, state, control, h):
     """Classical RK4 over (x, q, v, ω) under the force effects; the quaternion
     is renormalised at the end. Returns nothing; updates the state."""
     x0, q0, v0, w0 = state.position, state.orientation, state.velocity, state.angular_velocity
-    broken = state.arrays.get("spring_broken")
-    k1 = _derivative(model, BodyView(x0, q0, v0, w0, broken), control)
+    base = BodyView.of(state)
+    k1 = _derivative(model, base, control)
     stages = [k1]
     for frac in (0.5, 0.5, 1.0):
         k = stages[-1]
         view = BodyView(x0 + frac * h * k[0], quat_normalize(q0 + frac * h * k[1]),
-                        v0 + frac * h * k[2], w0 + frac * h * k[3], broken)
+                        v0 + frac * h * k[2], w0 + frac * h * k[3], base.spring_broken, base.joint_broken)
         stages.append(_derivative(model, view, control))
     k1, k2, k3, k4 = stages
     comb = [(a + 2 * b + 2 * c + d) * (h / 6.0) for a, b, c, d in zip(k1, k2, k3, k4)]

@@ -159,3 +159,52 @@ def skew(v: np.ndarray) -> np.ndarray:
     return np.stack(
         (np.stack((z, -w, y), -1), np.stack((w, z, -x), -1), np.stack((-y, x, z), -1)), axis=-2
     )
+
+
+def mat_vec(m: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """(..., 3, 3) @ (..., 3), written out."""
+    return np.stack(
+        (
+            m[..., 0, 0] * v[..., 0] + m[..., 0, 1] * v[..., 1] + m[..., 0, 2] * v[..., 2],
+            m[..., 1, 0] * v[..., 0] + m[..., 1, 1] * v[..., 1] + m[..., 1, 2] * v[..., 2],
+            m[..., 2, 0] * v[..., 0] + m[..., 2, 1] * v[..., 1] + m[..., 2, 2] * v[..., 2],
+        ),
+        axis=-1,
+    )
+
+
+def sym3_solve(k: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Solve K x = b for symmetric positive definite (..., 3, 3) K by the adjugate."""
+    a00, a01, a02 = k[..., 0, 0], k[..., 0, 1], k[..., 0, 2]
+    a11, a12, a22 = k[..., 1, 1], k[..., 1, 2], k[..., 2, 2]
+    c00 = a11 * a22 - a12 * a12
+    c01 = a02 * a12 - a01 * a22
+    c02 = a01 * a12 - a02 * a11
+    c11 = a00 * a22 - a02 * a02
+    c12 = a01 * a02 - a00 * a12
+    c22 = a00 * a11 - a01 * a01
+    det = a00 * c00 + a01 * c01 + a02 * c02
+    inv_det = np.where(det != 0.0, 1.0 / np.where(det != 0.0, det, 1.0), 0.0)
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    return np.stack(
+        (
+            (c00 * b0 + c01 * b1 + c02 * b2) * inv_det,
+            (c01 * b0 + c11 * b1 + c12 * b2) * inv_det,
+            (c02 * b0 + c12 * b1 + c22 * b2) * inv_det,
+        ),
+        axis=-1,
+    )
+
+
+def world_inv_inertia(q: np.ndarray, inv_inertia_body: np.ndarray) -> np.ndarray:
+    """World-frame inverse inertia R diag(I⁻¹) Rᵀ as (..., 3, 3)."""
+    r = quat_to_matrix(q)
+    d = inv_inertia_body[..., None, :]
+    rd = r * d  # R diag(d): scale columns
+    out = np.empty(r.shape)
+    for i in range(3):
+        for j in range(i, 3):
+            v = rd[..., i, 0] * r[..., j, 0] + rd[..., i, 1] * r[..., j, 1] + rd[..., i, 2] * r[..., j, 2]
+            out[..., i, j] = v
+            out[..., j, i] = v
+    return out

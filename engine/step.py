@@ -47,27 +47,25 @@ def step(model, state, control: Control | None = None):
     h = s.dt / s.substeps
     events = []
     constraints = [c for c in (model.contacts, model.joints) if c is not None and c.has_constraints]
+    passive = model.joints is not None and model.joints.has_passive
     for c in constraints:
         c.begin_step(model, state, h)
     for _ in range(s.substeps):
         if s.integrator == "symplectic":
             integrate_velocities(model, state, control, h)
-            for effect in model.velocity_hooks:
-                effect.velocity(model, state, h)
+            _velocity_effects(model, state, h, passive)
             _solve(model, state, constraints, h, use_bias=True)
             integrate_positions(model, state, h)
             _solve(model, state, constraints, h, use_bias=False)
         elif s.integrator == "euler":
             explicit_euler(model, state, control, h)
-            for effect in model.velocity_hooks:
-                effect.velocity(model, state, h)
+            _velocity_effects(model, state, h, passive)
             _solve(model, state, constraints, h, use_bias=True)
             _solve(model, state, constraints, h, use_bias=False)
         else:
             runge_kutta4(model, state, control, h)
             v1, w1 = state.velocity.copy(), state.angular_velocity.copy()
-            for effect in model.velocity_hooks:
-                effect.velocity(model, state, h)
+            _velocity_effects(model, state, h, passive)
             _solve(model, state, constraints, h, use_bias=True)
             # Constraint impulses move the positions by h Δv beyond the RK4 flow.
             state.position += h * (state.velocity - v1)
@@ -84,6 +82,13 @@ def step(model, state, control: Control | None = None):
         if bad.size:
             raise _nonfinite_error(model, state, bad)
     return state
+
+
+def _velocity_effects(model, state, h, passive):
+    for effect in model.velocity_hooks:
+        effect.velocity(model, state, h)
+    if passive:
+        model.joints.passive(model, state, h)
 
 
 def _solve(model, state, constraints, h, use_bias):

@@ -29,6 +29,13 @@ class BodyView:
     velocity: np.ndarray
     angular_velocity: np.ndarray
     spring_broken: np.ndarray | None = None
+    joint_broken: np.ndarray | None = None
+
+    @classmethod
+    def of(cls, state, copy=False):
+        c = (lambda a: a.copy()) if copy else (lambda a: a)
+        return cls(c(state.position), c(state.orientation), c(state.velocity), c(state.angular_velocity),
+                   state.arrays.get("spring_broken"), state.arrays.get("joint_broken"))
 
 
 @dataclass

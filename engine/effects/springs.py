@@ -27,6 +27,7 @@ import numpy as np
 
 from ..coloring import color_pairs
 from ..math3d import cross, dot, quat_rotate
+from ..soft import implicit_spring_impulse
 from ..state import Event
 
 STIFF_OMEGA_H = 0.25
@@ -99,9 +100,7 @@ class Springs:
             ia = _inv_inertia_world_apply(qa, inv_i[a], rna)
             ib = _inv_inertia_world_apply(qb, inv_i[b], rnb)
             inv_meff = inv_m[a] + inv_m[b] + dot(rna, ia) + dot(rnb, ib)
-            k, c = self.k[idx], self.c[idx]
-            gamma = h * (c + h * k)
-            impulse = -h * (k * (length - self.rest[idx]) + (c + h * k) * ldot) / (1.0 + gamma * inv_meff)
+            impulse = implicit_spring_impulse(self.k[idx], self.c[idx], h, length - self.rest[idx], ldot, inv_meff)
             if self.breakable:
                 impulse = np.where(state.spring_broken[:, idx], 0.0, impulse)
             p = impulse[..., None] * n

@@ -1,0 +1,34 @@
+"""Collision detection (geometry only): broad phase and narrow-phase manifolds.
+
+Broad phase (:mod:`.broadphase`): ``candidate_pairs`` once at build time,
+``aabb`` + ``overlapping`` each step. Narrow phase (:mod:`.narrowphase`):
+one vectorised function per shape pair kind returning a :class:`Manifold` of
+up to 4 points per pair, and ``collide`` to dispatch by shape types. The
+contact solver lives elsewhere and consumes the manifolds. Units: metres.
+"""
+
+from .broadphase import aabb, candidate_pairs, overlapping
+from .manifold import INVALID_SEPARATION, MAX_POINTS, Manifold
+from .narrowphase import (
+    PAIR_FUNCTIONS,
+    TYPE_ORDER,
+    box_box,
+    capsule_box,
+    capsule_capsule,
+    collide,
+    is_canonical,
+    pair_function,
+    plane_box,
+    plane_capsule,
+    plane_sphere,
+    sphere_box,
+    sphere_capsule,
+    sphere_sphere,
+)
+
+__all__ = [
+    "Manifold", "MAX_POINTS", "INVALID_SEPARATION", "collide", "pair_function", "is_canonical",
+    "PAIR_FUNCTIONS", "TYPE_ORDER", "plane_sphere", "plane_capsule", "plane_box", "sphere_sphere",
+    "sphere_capsule", "sphere_box", "capsule_capsule", "capsule_box", "box_box",
+    "candidate_pairs", "aabb", "overlapping",
+]

@@ -1,0 +1,49 @@
+"""Soft constraints (Catto, "Solver2D" and "Soft Step", 2024; Box2D v3 ``b2MakeSoft``).
+
+A constraint with stiffness ``hertz`` and damping ratio ``zeta`` on a substep
+of ``h`` seconds solves, per row with effective mass m = 1/(J M⁻¹ Jᵀ),
+
+    Δλ = -m · mass_scale · (J·u + bias_rate · C) - impulse_scale · λ
+
+where, with ω = 2π·hertz, a1 = 2ζ + hω, a2 = hω·a1, a3 = 1/(1 + a2):
+bias_rate = ω/a1, mass_scale = a2·a3, impulse_scale = a3. This is the implicit
+(backward Euler) update of a spring-damper of that frequency and damping ratio
+acting on the constraint error, so it is stable for any h. ``hertz = inf``
+gives a rigid constraint with full Baumgarte bias C/h.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class Softness:
+    bias_rate: float  # 1/s
+    mass_scale: float
+    impulse_scale: float
+
+
+def make_soft(hertz: float, zeta: float, h: float) -> Softness:
+    if hertz == 0.0:
+        return Softness(0.0, 1.0, 0.0)
+    if math.isinf(hertz):
+        return Softness(1.0 / h, 1.0, 0.0)
+    omega = 2.0 * math.pi * hertz
+    a1 = 2.0 * zeta + h * omega
+    a2 = h * omega * a1
+    a3 = 1.0 / (1.0 + a2)
+    return Softness(omega / a1, a2 * a3, a3)
+
+
+def implicit_spring_impulse(k, c, h, error, error_rate, inv_mass):
+    """Backward-Euler impulse of a spring-damper on one constraint row.
+
+    k: stiffness, c: damping, h: s, error C, error_rate Ċ = J·u, inv_mass =
+    J M⁻¹ Jᵀ. From P = h F(t+h), F = -k C(t+h) - c Ċ(t+h), C(t+h) ≈ C + h Ċ(t+h)
+    and Ċ(t+h) = Ċ + inv_mass P:
+        P = -h (k C + (c + h k) Ċ) / (1 + h (c + h k) inv_mass).
+    """
+    g = h * (c + h * k)
+    return -h * (k * error + (c + h * k) * error_rate) / (1.0 + g * inv_mass)
