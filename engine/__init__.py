@@ -1,6 +1,6 @@
 """ragdoll's physics engine: batched rigid bodies, joints and contacts on numpy."""
 from .builder import WORLD, SceneBuilder, STANDARD_GRAVITY, GRAVITATIONAL_CONSTANT
-from .control import Control
+from .control import Control, apply_impulse
 from .errors import SceneError, SimulationError
 from .materials import Material, MaterialTable
 from .model import Model

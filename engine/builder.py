@@ -247,7 +247,8 @@ class SceneBuilder:
             quat = math3d.quat_from_axis_angle(axis / s, math.atan2(s, n[2]))
         index = self.add_body(name, Plane(), position=(0.0, 0.0, h), orientation=quat,
                               material=material, static=True)
-        self.effects.setdefault("contacts", {})
+        for effect in ("contacts", "friction", "restitution"):
+            self.effects.setdefault(effect, {})
         return index
 
     def body_index(self, body, what: str = "") -> int:

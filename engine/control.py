@@ -71,3 +71,30 @@ class Control:
             if not np.all(np.isfinite(arr)):
                 bad = np.argwhere(~np.isfinite(arr))[0]
                 raise ValueError(f"control.{name} has a NaN or infinite entry at index {tuple(int(i) for i in bad)}")
+
+
+def apply_impulse(model, state, body, impulse, point=None, worlds=None):
+    """Apply an instantaneous world-frame impulse (N·s) to ``body`` at a world
+    ``point`` (m; default the body's centre), in the selected worlds.
+
+    impulse, point: (3,) or (W, 3). Velocities change by Δv = J/m and
+    Δω = I_w⁻¹ ((p - x) × J). A push in the environments is one of these.
+    """
+    from .math3d import quat_rotate, quat_rotate_inv
+
+    i = model.body_index(body)
+    W = state.num_worlds
+    J = np.broadcast_to(np.asarray(impulse, dtype=float), (W, 3)).copy()
+    if not np.all(np.isfinite(J)):
+        raise ValueError("impulse has a NaN or infinite entry")
+    if worlds is not None:
+        mask = np.zeros(W, dtype=bool)
+        mask[np.asarray(worlds)] = True
+        J[~mask] = 0.0
+    x = state.position[:, i]
+    p = x if point is None else np.broadcast_to(np.asarray(point, dtype=float), (W, 3))
+    if not np.all(np.isfinite(p)):
+        raise ValueError("impulse point has a NaN or infinite entry")
+    state.velocity[:, i] += J * model.inv_mass[i]
+    q = state.orientation[:, i]
+    state.angular_velocity[:, i] += quat_rotate(q, model.inv_inertia[i] * quat_rotate_inv(q, cross(p - x, J)))

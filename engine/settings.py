@@ -51,7 +51,7 @@ class Settings:
     contact_damping_ratio: float = 10.0
     max_push_out: float = 3.0
     restitution_threshold: float = 1.0
-    linear_slop: float = 0.005
+    linear_slop: float = 0.0
     speculative_distance: float = 0.02
     check_finite: bool = True
 

@@ -46,7 +46,7 @@ def step(model, state, control: Control | None = None):
     s = model.settings
     h = s.dt / s.substeps
     events = []
-    constraints = [c for c in (model.contacts, model.joints) if c is not None and c.has_constraints]
+    constraints = [c for c in (model.joints, model.contacts) if c is not None and c.has_constraints]
     passive = model.joints is not None and model.joints.has_passive
     for c in constraints:
         c.begin_step(model, state, h)

@@ -119,7 +119,7 @@ class Springs:
         if snapped.any():
             state.spring_broken |= snapped
             for w, s in zip(*np.nonzero(snapped)):
-                step = int(state.step[w])
+                step = int(state.step[w]) + 1  # the count after this step, as joints and SimulationError
                 events.append(Event("spring_broken", self.names[s], int(w), step, step * model.settings.dt))
 
     def potential(self, model, state):

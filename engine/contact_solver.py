@@ -1,0 +1,280 @@
+"""Contact rows in the soft-step solver (after Box2D v3 ``src/contact_solver.c``).
+
+One row is one (world, pair) manifold of up to 4 points sharing a normal n
+(from body a to body b). Per point, with lever arms r_a, r_b from the body
+centres (fixed for the step) and relative velocity v_rel = (v_b + ω_b × r_b)
+- (v_a + ω_a × r_a):
+
+* normal: effective mass m_n = 1 / (1/m_a + 1/m_b + (r_a×n)·I_a⁻¹(r_a×n) +
+  (r_b×n)·I_b⁻¹(r_b×n)); current separation s = s₀ + n·(Δ(x_b + r_b) -
+  Δ(x_a + r_a)) recomputed each substep from the bodies' displacement, so the
+  narrow phase runs once per step. While open (s > 0) the row is speculative:
+  bias s/h, rigid; when penetrating, the biased solve uses the contact
+  softness (stiffness min(contact_hertz, substep rate / 8), Box2D v3) with the
+  push-out speed capped at ``max_push_out``; the relax solve is rigid with no
+  bias. The accumulated impulse λ_n ≥ 0.
+* friction: two tangent rows, rigid, with the accumulated tangent impulse
+  clamped to the disc |λ_t| ≤ μ λ_n (Coulomb). μ is the static coefficient
+  for a point that was sticking at the start of the step (tangential speed
+  under ``STICK_SPEED``) and the kinetic coefficient for one that was sliding.
+* restitution: once per step after the substeps, from the closing normal
+  velocity v_c just before the point first took load in the step (Box2D takes it at the step start; within a step gravity adds up to
+  g·dt to the closing speed, which would cost ~7% of each bounce height at
+  60 Hz), for points closing faster than the threshold:
+  λ_n += -m_n (v_n + e v_c), clamped at λ_n ≥ 0.
+
+Rows are swept colour by colour (no (world, body) twice in a colour), the 4
+points of a row in sequence.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .math3d import cross, dot, mat_vec, normalize, quat_rotate, quat_rotate_inv
+from .soft import make_soft
+
+STICK_SPEED = 0.01  # m/s: below it a contact point uses static friction
+
+
+def _tangents(n):
+    """Two unit tangents (K, 3) perpendicular to the unit normals n."""
+    helper = np.where((np.abs(n[:, 0]) < 0.57)[:, None], np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]))
+    t1 = normalize(cross(n, helper))
+    return t1, cross(n, t1)
+
+
+def _color_rows(ka, kb, dyn_a, dyn_b, num_keys):
+    """Colour rows in vectorised rounds: in each round every (world, body) key
+    admits the lowest-numbered uncoloured row touching it; rows admitted by
+    both of their dynamic bodies take the round's colour."""
+    K = ka.size
+    color = np.full(K, -1, dtype=np.int64)
+    rem = np.arange(K)
+    c = 0
+    while rem.size:
+        claim = np.full(num_keys, K, dtype=np.int64)
+        da, db = dyn_a[rem], dyn_b[rem]
+        np.minimum.at(claim, ka[rem][da], rem[da])
+        np.minimum.at(claim, kb[rem][db], rem[db])
+        ok = (~da | (claim[ka[rem]] == rem)) & (~db | (claim[kb[rem]] == rem))
+        color[rem[ok]] = c
+        rem = rem[~ok]
+        c += 1
+    order = np.argsort(color, kind="stable")
+    bounds = np.searchsorted(color[order], np.arange(c + 1))
+    return [order[bounds[i]:bounds[i + 1]] for i in range(c)]
+
+
+class ContactRows:
+    """The contact rows of one step, with their impulses."""
+
+    def __init__(self, model, state, contacts, w, p, a, b, normal, point, sep, valid, lam_n, lam_t, h):
+        s = contacts.settings
+        N = model.num_bodies
+        self.w, self.p = w, p
+        self.ka, self.kb = w * N + a, w * N + b
+        self.dyn_a, self.dyn_b = model.dynamic[a], model.dynamic[b]
+        self.inv_ma, self.inv_mb = model.inv_mass[a], model.inv_mass[b]
+        self.n = normal
+        self.t1, self.t2 = _tangents(normal)
+        self.valid = valid
+        self.h = h
+        xa, xb = state.position[w, a], state.position[w, b]
+        qa, qb = state.orientation[w, a], state.orientation[w, b]
+        self.xa0, self.xb0 = xa, xb
+        ra = point - xa[:, None]
+        rb = point - xb[:, None]
+        self.ra, self.rb = ra, rb
+        self.la = quat_rotate_inv(qa[:, None], ra)  # body-local lever arms
+        self.lb = quat_rotate_inv(qb[:, None], rb)
+        self.sep0 = np.where(valid, sep, 0.0)
+        # World inverse inertias (step start), as in Box2D's prepare stage.
+        from .math3d import world_inv_inertia
+
+        self.ia = world_inv_inertia(qa, model.inv_inertia[a])[:, None]
+        self.ib = world_inv_inertia(qb, model.inv_inertia[b])[:, None]
+        base = (self.inv_ma + self.inv_mb)[:, None]
+        nn = normal[:, None]
+
+        def eff_mass(d):
+            ran, rbn = cross(ra, d), cross(rb, d)
+            k = base + dot(ran, mat_vec(self.ia, ran)) + dot(rbn, mat_vec(self.ib, rbn))
+            return np.where(valid, 1.0 / np.maximum(k, 1e-30), 0.0)
+
+        self.mn = eff_mass(nn)
+        self.mt1 = eff_mass(self.t1[:, None])
+        self.mt2 = eff_mass(self.t2[:, None])
+        va, vb = state.velocity[w, a], state.velocity[w, b]
+        wa, wb = state.angular_velocity[w, a], state.angular_velocity[w, b]
+        vrel = vb[:, None] + cross(wb[:, None], rb) - va[:, None] - cross(wa[:, None], ra)
+        self.vn0 = dot(vrel, nn)
+        vt = vrel - self.vn0[..., None] * nn
+        sticking = dot(vt, vt) < STICK_SPEED ** 2
+        self.mu = np.where(sticking, contacts.mu_static[p][:, None], contacts.mu_kinetic[p][:, None])
+        self.e = contacts.restitution[p]
+        self.threshold = s.restitution_threshold
+        self.lam_n = lam_n
+        self.lam_t1 = dot(lam_t, self.t1[:, None])
+        self.lam_t2 = dot(lam_t, self.t2[:, None])
+        self.max_lam_n = np.zeros(lam_n.shape)
+        self.vn_close = self.vn0.copy()
+        self.s_close = np.zeros(self.vn0.shape)
+        # Relative normal acceleration from uniform gravity (negative: closing).
+        g = model.gravity if "gravity" in model.effects else np.zeros(3)
+        self.gravity_n = dot(normal, g) * (self.dyn_b.astype(float) - self.dyn_a.astype(float))
+        hertz = min(s.contact_hertz, 0.125 / h)
+        self.soft = make_soft(hertz, s.contact_damping_ratio, h)
+        self.thesis = s.solver == "thesis"
+        self.max_push_out = s.max_push_out
+        self.slop = s.linear_slop
+        self.colors = _color_rows(self.ka, self.kb, self.dyn_a, self.dyn_b, state.num_worlds * N)
+
+    # ------------------------------------------------------------------------
+    def _gather(self, state, rows):
+        v = state.velocity.reshape(-1, 3)
+        w = state.angular_velocity.reshape(-1, 3)
+        ka, kb = self.ka[rows], self.kb[rows]
+        return v[ka], w[ka], v[kb], w[kb]
+
+    def _scatter(self, state, rows, va, wa, vb, wb):
+        v = state.velocity.reshape(-1, 3)
+        w = state.angular_velocity.reshape(-1, 3)
+        ka, kb = self.ka[rows], self.kb[rows]
+        da, db = self.dyn_a[rows], self.dyn_b[rows]
+        v[ka[da]], w[ka[da]] = va[da], wa[da]
+        v[kb[db]], w[kb[db]] = vb[db], wb[db]
+
+    def _apply(self, rows, j, P, va, wa, vb, wb):
+        """Impulse P (R, 3) at point j: -P on a, +P on b."""
+        ra, rb = self.ra[rows, j], self.rb[rows, j]
+        va = va - P * self.inv_ma[rows][:, None]
+        vb = vb + P * self.inv_mb[rows][:, None]
+        wa = wa - mat_vec(self.ia[rows, 0], cross(ra, P))
+        wb = wb + mat_vec(self.ib[rows, 0], cross(rb, P))
+        return va, wa, vb, wb
+
+    def warm_start(self, model, state):
+        lam = self.lam_n[..., None] * self.n[:, None] + self.lam_t1[..., None] * self.t1[:, None] \
+            + self.lam_t2[..., None] * self.t2[:, None]
+        if not lam.any():
+            return
+        for rows in self.colors:
+            va, wa, vb, wb = self._gather(state, rows)
+            for j in range(self.valid.shape[1]):
+                va, wa, vb, wb = self._apply(rows, j, lam[rows, j], va, wa, vb, wb)
+            self._scatter(state, rows, va, wa, vb, wb)
+
+    def _separation(self, state, rows):
+        """Current separation (R, 4) from the bodies' displacement this step."""
+        w = self.w[rows]
+        pa = state.position.reshape(-1, 3)[self.ka[rows]]
+        pb = state.position.reshape(-1, 3)[self.kb[rows]]
+        qa = state.orientation.reshape(-1, 4)[self.ka[rows]]
+        qb = state.orientation.reshape(-1, 4)[self.kb[rows]]
+        del w
+        ra = quat_rotate(qa[:, None], self.la[rows])
+        rb = quat_rotate(qb[:, None], self.lb[rows])
+        d = (pb - self.xb0[rows])[:, None] + rb - self.rb[rows] - (pa - self.xa0[rows])[:, None] - ra + self.ra[rows]
+        return self.sep0[rows] + dot(d, self.n[rows][:, None])
+
+    def solve(self, model, state, h, use_bias):
+        soft = self.soft
+        for rows in self.colors:
+            va, wa, vb, wb = self._gather(state, rows)
+            n = self.n[rows]
+            t1, t2 = self.t1[rows], self.t2[rows]
+            sep = self._separation(state, rows)
+            valid = self.valid[rows]
+            for j in range(valid.shape[1]):
+                ok = valid[:, j]
+                ra, rb = self.ra[rows, j], self.rb[rows, j]
+                vrel = vb + cross(wb, rb) - va - cross(wa, ra)
+                vn = dot(vrel, n)
+                s = sep[:, j]
+                if use_bias and not self.thesis:
+                    pen = np.minimum(s + self.slop, 0.0)
+                    bias = np.where(s > 0, s / h, np.maximum(soft.bias_rate * pen, -self.max_push_out))
+                    ms = np.where(s > 0, 1.0, soft.mass_scale)
+                    isc = np.where(s > 0, 0.0, soft.impulse_scale)
+                else:
+                    bias = np.where(s > 0, s / h, 0.0)
+                    ms, isc = 1.0, 0.0
+                lam = self.lam_n[rows, j]
+                d = -self.mn[rows, j] * ms * (vn + bias) - isc * lam
+                new = np.where(ok, np.maximum(lam + d, 0.0), 0.0)
+                d = new - lam
+                # Closing speed for restitution: the normal velocity just
+                # before the point first takes load in this step.
+                first = (self.max_lam_n[rows, j] == 0) & (new > 0)
+                self.vn_close[rows, j] = np.where(first, vn, self.vn_close[rows, j])
+                self.s_close[rows, j] = np.where(first, s, self.s_close[rows, j])
+                self.lam_n[rows, j] = new
+                self.max_lam_n[rows, j] = np.maximum(self.max_lam_n[rows, j], new)
+                va, wa, vb, wb = self._apply(rows, j, d[:, None] * n, va, wa, vb, wb)
+            for j in range(valid.shape[1]):
+                ok = valid[:, j]
+                ra, rb = self.ra[rows, j], self.rb[rows, j]
+                vrel = vb + cross(wb, rb) - va - cross(wa, ra)
+                l1, l2 = self.lam_t1[rows, j], self.lam_t2[rows, j]
+                n1 = l1 - self.mt1[rows, j] * dot(vrel, t1)
+                n2 = l2 - self.mt2[rows, j] * dot(vrel, t2)
+                limit = self.mu[rows, j] * self.lam_n[rows, j]
+                mag = np.sqrt(n1 * n1 + n2 * n2)
+                scale = np.where(mag > limit, limit / np.maximum(mag, 1e-30), 1.0)
+                n1 = np.where(ok, n1 * scale, 0.0)
+                n2 = np.where(ok, n2 * scale, 0.0)
+                self.lam_t1[rows, j], self.lam_t2[rows, j] = n1, n2
+                P = (n1 - l1)[:, None] * t1 + (n2 - l2)[:, None] * t2
+                va, wa, vb, wb = self._apply(rows, j, P, va, wa, vb, wb)
+            self._scatter(state, rows, va, wa, vb, wb)
+
+    def restitution(self, model, state):
+        """Bounce once per step from the closing speed at impact."""
+        # The speculative row took load while the gap s_c was still open; under
+        # uniform gravity the speed at touch-down follows from energy:
+        # v_impact² = v_c² + 2 |a_n| s_c (a_n: relative normal acceleration).
+        closing_acc = np.maximum(-self.gravity_n, 0.0)[:, None]
+        v_imp = -np.sqrt(self.vn_close ** 2 + 2.0 * closing_acc * np.maximum(self.s_close, 0.0))
+        v_imp = np.where(self.vn_close < 0, v_imp, self.vn_close)
+        # Semi-implicit Euler's velocity is staggered half a substep from its
+        # position, so a free flight under a_n returns to the surface |a_n|·h
+        # slower than it left (its invariant is ½v² - a_n x - ½ a_n h v). The
+        # launch speed gets that kick back, so the next impact is e·v_i.
+        launch_kick = closing_acc * self.h
+        bounce = (v_imp < -self.threshold) & (self.max_lam_n > 0) & self.valid & (self.e[:, None] > 0)
+        if not bounce.any():
+            return
+        for rows in self.colors:
+            if not bounce[rows].any():
+                continue
+            va, wa, vb, wb = self._gather(state, rows)
+            n = self.n[rows]
+            for j in range(self.valid.shape[1]):
+                ok = bounce[rows, j]
+                ra, rb = self.ra[rows, j], self.rb[rows, j]
+                vn = dot(vb + cross(wb, rb) - va - cross(wa, ra), n)
+                lam = self.lam_n[rows, j]
+                d = -self.mn[rows, j] * (vn + self.e[rows] * v_imp[rows, j] - launch_kick[rows, 0])
+                new = np.where(ok, np.maximum(lam + d, 0.0), lam)
+                d = new - lam
+                self.lam_n[rows, j] = new
+                va, wa, vb, wb = self._apply(rows, j, d[:, None] * n, va, wa, vb, wb)
+            self._scatter(state, rows, va, wa, vb, wb)
+
+    def project_positions(self, model, state):
+        """The thesis's penetration resolution: move both bodies apart along the
+        normal by the penetration depth, split by inverse mass."""
+        rows = np.arange(self.w.size)
+        sep = np.where(self.valid, self._separation(state, rows), np.inf).min(axis=1)
+        depth = np.maximum(-(sep + self.slop), 0.0)
+        total = np.maximum(self.inv_ma + self.inv_mb, 1e-30)
+        pos = state.position.reshape(-1, 3)
+        np.add.at(pos, self.ka, -(depth * self.inv_ma / total)[:, None] * self.n)
+        np.add.at(pos, self.kb, (depth * self.inv_mb / total)[:, None] * self.n)
+
+    def store(self, state):
+        """Keep the impulses for next step's warm start."""
+        state.contact_normal_impulse[self.w, self.p] = self.lam_n
+        state.contact_friction_impulse[self.w, self.p] = (self.lam_t1[..., None] * self.t1[:, None]
+                                                          + self.lam_t2[..., None] * self.t2[:, None])

@@ -1,0 +1,45 @@
+import json
+import math
+
+import pytest
+
+from benchmarks.throughput import main
+
+KEYS = {"engine", "mode", "scene", "worlds", "dt_s", "world_steps_per_s", "sim_s_per_s", "bytes_per_world"}
+
+
+def check_rows(rows):
+    assert isinstance(rows, list) and rows
+    for r in rows:
+        assert KEYS <= r.keys()
+        assert r["engine"] in ("ragdoll", "mujoco")
+        assert r["mode"] in ("batched", "loop", "rollout-1thread", "rollout-2thread", "env", "vector-env")
+        assert isinstance(r["worlds"], int) and r["worlds"] >= 1
+        assert math.isfinite(r["world_steps_per_s"]) and r["world_steps_per_s"] > 0
+        for key in ("dt_s", "sim_s_per_s", "bytes_per_world"):
+            assert r[key] is None or (math.isfinite(r[key]) and r[key] > 0)
+
+
+def test_quick_run_writes_rows(tmp_path, capsys):
+    path = tmp_path / "throughput.json"
+    main(["--quick", "--json", str(path)])
+    rows = json.loads(path.read_text())
+    check_rows(rows)
+    scenes = {r["scene"] for r in rows}
+    assert {"free_bodies", "ragdoll_air"} <= scenes
+    for r in rows:
+        assert r["mode"] == "batched" and r["worlds"] in (1, 8)
+        assert r["bytes_per_world"] > 0 and r["sim_s_per_s"] > 0
+    assert "world-steps/s" in capsys.readouterr().out
+
+
+def test_quick_mujoco_comparison(tmp_path):
+    pytest.importorskip("mujoco")
+    pytest.importorskip("gymnasium")
+    path = tmp_path / "throughput.json"
+    main(["--quick", "--scenes", "ragdoll_air", "--worlds", "1", "--compare-mujoco", "--json", str(path)])
+    rows = json.loads(path.read_text())
+    check_rows(rows)
+    modes = {(r["engine"], r["mode"]) for r in rows}
+    assert {("mujoco", "loop"), ("mujoco", "rollout-1thread"), ("mujoco", "rollout-2thread"),
+            ("mujoco", "env"), ("mujoco", "vector-env"), ("ragdoll", "batched")} <= modes
