@@ -82,6 +82,11 @@ def _numeric(text: str) -> bool:
         return text == "-"
 
 
+def machine_note() -> str:
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    return f"machine: {os.cpu_count()} CPUs, 1-min load average {load:.2f} at the end of the run"
+
+
 def write_json(path: str, rows) -> None:
     directory = os.path.dirname(os.path.abspath(path))
     os.makedirs(directory, exist_ok=True)

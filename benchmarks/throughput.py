@@ -21,7 +21,7 @@ import numpy as np
 from engine import Box, Capsule, Control, SceneBuilder, Sphere, step
 from engine.humanoid import add_humanoid
 
-from .common import measure, print_table, write_json
+from .common import machine_note, measure, print_table, write_json
 
 DEFAULT_WORLDS = (1, 16, 256, 1024, 4096)
 QUICK_WORLDS = (1, 8)
@@ -333,6 +333,7 @@ def main(argv=None):
     print()
     print_table(rows, COLUMNS, title="Throughput (median of repeats; B/world = state.nbytes()/W "
                                      "+ tracemalloc peak of one step / W)")
+    print(machine_note())
     for line in ratio_lines(rows):
         print(line)
     for note in notes:

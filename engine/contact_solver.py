@@ -35,6 +35,7 @@ from .math3d import cross, dot, mat_vec, normalize, quat_rotate, quat_rotate_inv
 from .soft import make_soft
 
 STICK_SPEED = 0.01  # m/s: below it a contact point uses static friction
+CONTACT_HERTZ_CAP = 0.25  # contact stiffness at most this fraction of the substep rate (Box2D v3)
 
 
 def _tangents(n):
@@ -123,7 +124,7 @@ class ContactRows:
         # Relative normal acceleration from uniform gravity (negative: closing).
         g = model.gravity if "gravity" in model.effects else np.zeros(3)
         self.gravity_n = dot(normal, g) * (self.dyn_b.astype(float) - self.dyn_a.astype(float))
-        hertz = min(s.contact_hertz, 0.125 / h)
+        hertz = min(s.contact_hertz, CONTACT_HERTZ_CAP / h)
         self.soft = make_soft(hertz, s.contact_damping_ratio, h)
         self.thesis = s.solver == "thesis"
         self.max_push_out = s.max_push_out

@@ -325,7 +325,7 @@ def test_torque_free_box_intermediate_axis_flips_major_axis_does_not():
     s = model.initial_state(3)
     for w, axis in enumerate((1, 2, 0)):
         wb = np.full(3, 0.01)
-        wb[axis] = 5.0
+        wb[axis] = 10.0
         # A tilted start, so the body frame differs from the world frame.
         q = quat_from_axis_angle(np.array([1.0, 2.0, 3.0]), 0.7)
         s.orientation[w, 0] = q
@@ -344,10 +344,12 @@ def test_torque_free_box_intermediate_axis_flips_major_axis_does_not():
         max_dl = np.maximum(max_dl, dl)
     wb_hist = np.array(wb_hist)  # (steps, worlds, 3)
     flips = [int(np.sum(np.diff(np.sign(wb_hist[:, w, axis])) != 0)) for w, axis in enumerate((1, 2, 0))]
-    assert flips[0] >= 1, "spin about the intermediate axis did not flip in 10 s"
+    # Growth rate ω √((I2-I1)(I3-I2)/(I1 I3)) = 6 /s here: the first flip comes after
+    # about 3 s, and it keeps flipping back and forth.
+    assert flips[0] >= 2, f"spin about the intermediate axis flipped {flips[0]} times in 10 s"
     assert flips[1] == 0 and flips[2] == 0, "spin about the major/minor axis flipped"
     # The major-axis spin stays within a few degrees of its axis.
-    assert np.all(wb_hist[:, 1, 2] > 0.99 * 5.0)
+    assert np.all(wb_hist[:, 1, 2] > 0.99 * 10.0)
     # 1e-3 relative over 10 s (acceptance): the splitting conserves |L| exactly and
     # energy to O(h²) without drift.
     assert np.all(max_dk < 1e-3), max_dk
