@@ -262,13 +262,28 @@ class JointSet:
         self._iinv = world_inv_inertia(state.orientation, model.inv_inertia)
         s = self.settings
         self._soft = make_soft(s.joint_hertz, s.joint_damping_ratio, h)
+        self._limit_soft = make_soft(s.limit_hertz, s.joint_damping_ratio, h)
+        self._substeps_done = 0
+        if self.breakable:
+            # Impulses summed over the step's substeps: the load a joint carries.
+            self._lin_sum = np.zeros(state.joint_linear_impulse.shape)
+            self._ang_sum = np.zeros(state.joint_linear_impulse.shape[:2])
         if s.solver == "thesis":
             self._soft = make_soft(0.0, 0.0, h)  # rigid rows, position error by projection
+            self._limit_soft = self._soft
 
     def _active(self, state, idx):
         return (~state.joint_broken[:, idx]).astype(float)
 
+    def _add_load(self, state):
+        self._lin_sum += state.joint_linear_impulse
+        L = state.joint_angular_impulse
+        self._ang_sum += np.sqrt(dot(L, L)) + np.abs(state.joint_limit_impulse).sum(axis=-1)
+
     def warm_start(self, model, state):
+        if self.breakable and self._substeps_done:
+            self._add_load(state)  # λ at the end of the previous substep
+        self._substeps_done += 1
         for color in self.colors:
             idx = color["all"]
             a, b, fpw, fcw, ra, rb = self.frames(state, idx)
@@ -315,9 +330,9 @@ class JointSet:
         rigid_bias = self.settings.solver == "thesis"
         for color in self.colors:
             if color["twist_limit"].size:
-                self._solve_twist_limits(model, state, color["twist_limit"], h, use_bias, soft)
+                self._solve_twist_limits(model, state, color["twist_limit"], h, use_bias, self._limit_soft)
             if color["swing_limit"].size:
-                self._solve_swing_limits(model, state, color["swing_limit"], h, use_bias, soft)
+                self._solve_swing_limits(model, state, color["swing_limit"], h, use_bias, self._limit_soft)
             if color["hinge"].size:
                 self._solve_hinge_lock(model, state, color["hinge"], h, use_bias and not rigid_bias, soft)
             if color["fixed"].size:
@@ -444,10 +459,10 @@ class JointSet:
             self._project_positions(model, state)
         if not self.breakable:
             return
-        force = np.sqrt(dot(state.joint_linear_impulse, state.joint_linear_impulse)) / h
-        L = state.joint_angular_impulse
-        lim = state.joint_limit_impulse
-        torque = (np.sqrt(dot(L, L)) + np.abs(lim).sum(axis=-1)) / h
+        self._add_load(state)
+        dt = model.settings.dt
+        force = np.sqrt(dot(self._lin_sum, self._lin_sum)) / dt
+        torque = self._ang_sum / dt
         snapped = ((force > self.break_force) | (torque > self.break_torque)) & ~state.joint_broken
         if snapped.any():
             state.joint_broken |= snapped

@@ -27,7 +27,9 @@ class Settings:
     solver: "soft_step" (Catto's soft step, default) or "thesis" (sequential
         impulses with mass-ratio split of penetration, the baseline).
     joint_hertz, joint_damping_ratio: softness of joint constraints (Hz, -);
-        ``joint_hertz = inf`` makes joints rigid (Baumgarte-free, relax only).
+        ``joint_hertz = inf`` makes joints rigid (full bias C/h).
+    limit_hertz: softness of joint limits (Hz); default inf, rigid, so a
+        joint driven into its limit by its maximum torque holds the limit.
     contact_hertz, contact_damping_ratio: softness of contacts; the contact
         stiffness used is min(contact_hertz, substep rate / 8) as in Box2D v3.
     max_push_out: m/s, the largest speed the position bias may add.
@@ -47,6 +49,7 @@ class Settings:
     solver: str = "soft_step"
     joint_hertz: float = 60.0
     joint_damping_ratio: float = 2.0
+    limit_hertz: float = math.inf
     contact_hertz: float = 30.0
     contact_damping_ratio: float = 10.0
     max_push_out: float = 3.0
@@ -74,7 +77,7 @@ class Settings:
             raise ValueError(f"settings: unknown integrator {self.integrator!r}; choose one of {INTEGRATORS}")
         if self.solver not in SOLVERS:
             raise ValueError(f"settings: unknown solver {self.solver!r}; choose one of {SOLVERS}")
-        for name in ("joint_hertz", "contact_hertz"):
+        for name in ("joint_hertz", "contact_hertz", "limit_hertz"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"settings: {name} must be > 0 (inf for rigid), got {getattr(self, name)!r}")
         for name in ("joint_damping_ratio", "contact_damping_ratio", "max_push_out",

@@ -170,13 +170,19 @@ class BalanceTask(Task):
                 lo, hi = lim.get("twist", (-np.pi, np.pi))
                 d[0] = np.clip(d[0], lo, hi)
                 angles[name] = tuple(float(v) for v in d)
-        pos, quat = pose(h, model, angles)
+        return self.pose_on_ground(model, angles, velocity=(*rng.uniform(-noise, noise, size=2), 0.0))
+
+    def pose_on_ground(self, model, angles, velocity=(0.0, 0.0, 0.0)):
+        """Pose dict (see :meth:`Task.reset_world`) of the humanoid at joint
+        ``angles`` (``engine.humanoid.pose`` format), lowered until its lowest
+        point touches the ground, every body moving with ``velocity`` (m/s)."""
+        pos, quat = pose(self.humanoid, model, angles)
         pos = pos.copy()
         lowest = lowest_points(model, pos, quat, self.humanoid_bodies).min()
         pos[self.humanoid_bodies, 2] -= lowest
         n = model.num_bodies
         vel = np.zeros((n, 3))
-        vel[self.humanoid_bodies, :2] = rng.uniform(-noise, noise, size=2)
+        vel[self.humanoid_bodies] = np.asarray(velocity, dtype=float)
         return {"position": pos, "orientation": quat, "velocity": vel, "angular_velocity": np.zeros((n, 3))}
 
     # ------------------------------------------------------------ observe

@@ -1,0 +1,232 @@
+"""Balance-v0: the humanoid task.
+
+Tests marked ``contacts`` need the engine's contact model (``model.contacts``
+with ``touching_static``). Until it lands they report xfail with that reason
+instead of running; once it lands they run as ordinary tests. The long ones
+are also ``slow`` (run them with ``pytest -m slow``).
+"""
+
+import warnings
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+from engine import math3d
+from ragdoll_env.baselines import StandingPD, ZeroTorque
+from ragdoll_env.tasks.balance import lowest_points
+
+from env_helpers import make
+
+
+def balance(**kwargs):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return gym.make("Ragdoll/Balance-v0", **kwargs)
+
+
+def needs_contacts(env):
+    if getattr(env.unwrapped.model, "contacts", None) is None:
+        pytest.xfail("the engine has no contact model yet (engine/contacts.py); this test needs it")
+
+
+# ---------------------------------------------------------------- no contacts needed
+def test_observation_layout():
+    env = make("Ragdoll/Balance-v0")
+    u = env.unwrapped
+    layout = u.obs_layout
+    assert [k for k in layout] == ["pelvis_height", "pelvis_orientation", "pelvis_velocity",
+                                   "pelvis_angular_velocity", "joint_angles", "joint_velocities",
+                                   "com_from_feet", "com_velocity", "foot_contacts"]
+    assert sum(s.stop - s.start for s in layout.values()) == env.observation_space.shape[0] == 81
+    assert len(u.actuator_names) == env.action_space.shape[0] == 31
+    assert u.actuator_names == tuple(a.name for a in u.model.actuators)
+    assert np.array_equal(u.core.max_torque, [a.max_torque for a in u.model.actuators])
+
+
+def test_reset_stands_on_the_ground_upright():
+    env = make("Ragdoll/Balance-v0", reset_noise_scale=0.0)
+    u = env.unwrapped
+    obs, _ = env.reset(seed=0)
+    L = u.obs_layout
+    assert obs[L["pelvis_height"]][0] == pytest.approx(u.task.standing_pelvis_height, abs=1e-6)
+    assert np.allclose(obs[L["pelvis_orientation"]], [1, 0, 0, 0], atol=1e-6)
+    assert np.allclose(obs[L["joint_angles"]], 0.0, atol=1e-6)
+    assert abs(obs[L["com_from_feet"]][0]) < 0.1 and abs(obs[L["com_from_feet"]][1]) < 1e-6
+    low = lowest_points(u.model, u.state.position[0], u.state.orientation[0], u.task.humanoid_bodies)
+    assert low.min() == pytest.approx(0.0, abs=1e-9)
+
+
+def test_reset_noise_keeps_the_soles_on_the_ground():
+    env = make("Ragdoll/Balance-v0", reset_noise_scale=0.05)
+    u = env.unwrapped
+    for seed in range(3):
+        obs, _ = env.reset(seed=seed)
+        low = lowest_points(u.model, u.state.position[0], u.state.orientation[0], u.task.humanoid_bodies)
+        assert low.min() == pytest.approx(0.0, abs=1e-9)
+        assert np.abs(obs[u.obs_layout["joint_angles"]]).max() <= 0.05 + 1e-6
+
+
+def test_standing_reward_terms():
+    env = make("Ragdoll/Balance-v0", reset_noise_scale=0.0)
+    env.reset(seed=0)
+    _, r, term, _, info = env.step(np.zeros(31, dtype=np.float32))
+    assert not term and info["healthy"]
+    assert info["reward_survive"] == 1.0 and info["reward_ctrl"] == 0.0
+    assert info["reward_upright"] == pytest.approx(0.5, abs=1e-3)
+    assert info["reward_height"] == pytest.approx(0.5, abs=0.01)
+    assert r <= env.unwrapped.task.max_reward_per_step
+
+
+def test_low_pelvis_or_head_is_unhealthy():
+    env = make("Ragdoll/Balance-v0", reset_noise_scale=0.0)
+    u = env.unwrapped
+    env.reset(seed=0)
+    u.state.position[0, :, 2] -= 0.5  # the whole body sinks half a metre
+    _, r, term, _, info = env.step(np.zeros(31, dtype=np.float32))
+    assert term and not info["healthy"] and info["reward_survive"] == 0.0 and info["reward_height"] == 0.0
+
+
+class _FakeContacts:
+    """Stands in for engine contacts: bodies listed in ``touching`` touch the ground."""
+
+    effect_names = set()
+    has_constraints = False
+
+    def __init__(self, touching):
+        self.touching = touching
+
+    def touching_static(self, state):
+        out = np.zeros((state.num_worlds, len(self.names)), dtype=bool)
+        out[:, self.touching] = True
+        return out
+
+
+def test_touching_static_drives_foot_contacts_and_health():
+    env = make("Ragdoll/Balance-v0", reset_noise_scale=0.0)
+    u = env.unwrapped
+    m = u.model
+    feet = [m.body_index("foot_l"), m.body_index("foot_r")]
+    fake = _FakeContacts(feet)
+    fake.names = m.body_names
+    m.contacts = fake
+    try:
+        obs, _ = env.reset(seed=0)
+        assert np.array_equal(obs[u.obs_layout["foot_contacts"]], [1.0, 1.0])
+        _, _, term, _, info = env.step(np.zeros(31, dtype=np.float32))
+        assert not term and info["healthy"] and not info["other_contact"]
+        fake.touching = feet + [m.body_index("lower_arm_l")]
+        _, _, term, _, info = env.step(np.zeros(31, dtype=np.float32))
+        assert term and info["other_contact"] and not info["healthy"]
+    finally:
+        m.contacts = None
+
+
+def test_push_is_an_impulse_on_the_chosen_body():
+    env = make("Ragdoll/Balance-v0", reset_noise_scale=0.0)
+    u = env.unwrapped
+    env.reset(seed=0)
+    chest = u.model.body_index("chest")
+    v0 = u.state.velocity[0, chest].copy()
+    env.unwrapped.push([10.0, 0.0, 0.0], body="chest")
+    dv = u.state.velocity[0, chest] - v0
+    assert dv == pytest.approx([10.0 / u.model.mass[chest], 0.0, 0.0])
+
+
+def test_default_pushes_hit_chest_or_pelvis():
+    env = make("Ragdoll/Balance-v0", push_interval=(0.02, 0.04), healthy_pelvis_height=-10,
+               healthy_head_height=-10)
+    u = env.unwrapped
+    env.reset(seed=1)
+    bodies = set()
+    for _ in range(20):
+        info = env.step(np.zeros(31, dtype=np.float32))[4]
+        if info["push_applied"]:
+            bodies.add(u.model.body_names[info["push_body"]])
+            assert 5.0 <= np.linalg.norm(info["push_impulse"]) <= 20.0
+    assert bodies and bodies <= {"chest", "pelvis"}
+
+
+def test_standing_pd_is_quiet_at_the_standing_pose():
+    env = make("Ragdoll/Balance-v0", reset_noise_scale=0.0)
+    obs, _ = env.reset(seed=0)
+    a = StandingPD(env).act(obs)
+    assert a.shape == (31,) and a.dtype == np.float32
+    assert np.abs(a).max() < 1e-3
+
+
+# ---------------------------------------------------------------- contacts needed
+def test_feet_touch_the_ground_after_reset():
+    """contacts: both foot_contacts read 1 while standing, nothing else touches."""
+    env = balance()
+    needs_contacts(env)
+    obs, _ = env.reset(seed=0)
+    obs, _, term, _, info = env.step(np.zeros(31, dtype=np.float32))
+    assert np.array_equal(obs[env.unwrapped.obs_layout["foot_contacts"]], [1.0, 1.0])
+    assert not info["other_contact"] and not term
+
+
+def test_humanoid_rests_on_the_ground_instead_of_sinking():
+    """contacts: with the PD for half a second, the soles stay within 2 cm of the ground."""
+    env = balance(push_strength=0)
+    needs_contacts(env)
+    u = env.unwrapped
+    obs, _ = env.reset(seed=0)
+    pd = StandingPD(env)
+    for _ in range(15):
+        obs, *_ = env.step(pd.act(obs))
+    low = lowest_points(u.model, u.state.position[0], u.state.orientation[0], u.task.humanoid_bodies)
+    assert low.min() > -0.02
+
+
+@pytest.mark.slow
+def test_zero_torque_falls_onto_the_ground():
+    """contacts: a passive doll collapses within 5 s (terminated), and lies on the ground, not under it."""
+    env = balance(push_strength=0)
+    needs_contacts(env)
+    u = env.unwrapped
+    obs, _ = env.reset(seed=0)
+    zero = ZeroTorque(env)
+    for step in range(int(5.0 / u.dt)):
+        obs, _, term, _, info = env.step(zero.act(obs))
+        if term:
+            break
+    assert term
+    for _ in range(int(1.0 / u.dt)):
+        obs, *_ = env.step(zero.act(obs))
+    assert u.state.position[0, u.task.pelvis, 2] > 0.05
+
+
+@pytest.mark.slow
+def test_standing_pd_stands_20_seconds_without_pushes():
+    """contacts: the PD baseline keeps the humanoid standing for a whole 20 s episode."""
+    env = balance(push_strength=0)
+    needs_contacts(env)
+    u = env.unwrapped
+    obs, _ = env.reset(seed=0)
+    pd = StandingPD(env)
+    total, steps = 0.0, 0
+    while True:
+        obs, r, term, trunc, info = env.step(pd.act(obs))
+        total += r
+        steps += 1
+        assert not term, f"fell after {steps * u.dt:.2f} s: {info}"
+        if trunc:
+            break
+    assert steps == env.spec.max_episode_steps
+    assert info["head_height"] > 1.4
+    assert total > 0.9 * u.max_return
+
+
+@pytest.mark.slow
+def test_pushes_are_counted_as_survived_with_the_pd():
+    """contacts: with gentle pushes the PD survives some of them, and info counts them."""
+    env = balance(push_strength=(3.0, 6.0), push_interval=(1.0, 1.5))
+    needs_contacts(env)
+    obs, _ = env.reset(seed=0)
+    pd = StandingPD(env)
+    for _ in range(int(6.0 / env.unwrapped.dt)):
+        obs, _, term, _, info = env.step(pd.act(obs))
+        if term:
+            break
+    assert info["pushes"] >= 2 and info["pushes_survived"] >= 1
