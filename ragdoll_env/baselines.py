@@ -17,6 +17,9 @@ env and the SB3 VecEnv alike. Build one from any of them with
 * :class:`PendulumPD` — pendulums: a PD on the hinge angles.
 * :class:`StandingPD` — Balance: a PD per actuated axis holding the standing
   pose (every joint angle 0), gains per joint in N·m/rad and N·m·s/rad.
+  Known limit: it does not yet keep the humanoid up (it falls within ~2 s,
+  zero torque within ~1 s): torque PD at the env rate cannot be stiff on the
+  light trunk bones (see :data:`STANDING_GAINS`).
 
 scipy is optional: with it the LQR's Riccati equation is solved by
 ``scipy.linalg.solve_discrete_are``, without it by fixed-point iteration.
@@ -173,19 +176,23 @@ class LQR(Controller):
 
 #: StandingPD gains per joint (canonical name without side): (kp, kd) for a
 #: hinge, or per axis ((kp, kd) twist, swing_y, swing_z) for a ball joint, in
-#: N·m/rad and N·m·s/rad. The support chain (ankle, knee, hip, spine) is stiff
-#: enough to carry the body; the light distal axes (neck, arms, twists) get
-#: small damping so that the zero-order hold over one env step stays stable.
+#: N·m/rad and N·m·s/rad. The ankles carry the body as an inverted pendulum
+#: (Σ kp > m g h ≈ 700 N·m/rad); every other axis is limited by the light
+#: bones it drives: the pelvis, abdomen and chest turn with only 0.04-0.1 kg·m²
+#: relative to their neighbours (measured from the engine's response to unit
+#: torques), so an explicit PD held over a 1/30 s step oscillates and diverges
+#: at larger kd·Δt/I or kp·Δt²/I. These values stood longest of those tried;
+#: see the module notes: the humanoid still falls within about 2 s.
 STANDING_GAINS = {
-    "spine_lower": ((150.0, 8.0), (600.0, 40.0), (600.0, 40.0)),
-    "spine_upper": ((100.0, 5.0), (400.0, 20.0), (400.0, 20.0)),
-    "neck": ((5.0, 0.3), (40.0, 1.5), (40.0, 1.5)),
-    "shoulder": ((2.0, 0.05), (30.0, 1.0), (30.0, 1.0)),
-    "elbow": (15.0, 0.5),
+    "spine_lower": ((42.0, 1.05), (105.0, 1.75), (105.0, 1.75)),
+    "spine_upper": ((35.0, 1.05), (70.0, 1.4), (70.0, 1.4)),
+    "neck": ((2.8, 0.1), (10.5, 0.28), (10.5, 0.28)),
+    "shoulder": ((1.4, 0.035), (14.0, 0.35), (14.0, 0.35)),
+    "elbow": (5.6, 0.14),
     "wrist": ((0.5, 0.01), (2.0, 0.05), (2.0, 0.05)),
-    "hip": ((30.0, 0.5), (800.0, 60.0), (800.0, 60.0)),
-    "knee": (800.0, 40.0),
-    "ankle": ((5.0, 0.1), (600.0, 40.0), (300.0, 20.0)),
+    "hip": ((14.0, 0.35), (140.0, 2.1), (140.0, 2.1)),
+    "knee": (105.0, 2.1),
+    "ankle": ((7.0, 0.21), (420.0, 28.0), (280.0, 17.5)),
 }
 
 

@@ -289,9 +289,19 @@ class BatchedSim:
 
     # ------------------------------------------------------------ render
     def make_renderer(self, width: int, height: int):
+        """A Renderer of the model's shapes, with the task's camera; a scene
+        without a ground plane (the pendulums) gets one drawn at z = 0 (for
+        the picture only: the physics has none)."""
+        from engine.shapes import PLANE
+
         from .render import Renderer
 
-        renderer = Renderer.from_model(self.model, width=width, height=height)
+        types, params = np.asarray(self.model.shape_type), np.asarray(self.model.shape_params)
+        self._render_floor = not np.any(types == PLANE)
+        if self._render_floor:
+            types = np.append(types, PLANE)
+            params = np.vstack((params, np.zeros(3)))
+        renderer = Renderer(types, params, width=width, height=height)
         cam = self.task.camera
         renderer.distance, renderer.elevation, renderer.azimuth = cam["distance"], cam["elevation"], cam["azimuth"]
         return renderer
@@ -301,7 +311,11 @@ class BatchedSim:
         target = self.task.camera_target(self.model, self.state.select([world]))[0]
         if not np.all(np.isfinite(target)):
             target = None
-        return renderer.render(self.state.position[world], self.state.orientation[world], target=target)
+        pos, quat = self.state.position[world], self.state.orientation[world]
+        if getattr(self, "_render_floor", False):
+            pos = np.vstack((pos, np.zeros(3)))
+            quat = np.vstack((quat, [1.0, 0.0, 0.0, 0.0]))
+        return renderer.render(pos, quat, target=target)
 
 
 def world_info(info: dict, w: int) -> dict:

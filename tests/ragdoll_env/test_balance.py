@@ -1,9 +1,9 @@
 """Balance-v0: the humanoid task.
 
-Tests marked ``contacts`` need the engine's contact model (``model.contacts``
-with ``touching_static``). Until it lands they report xfail with that reason
-instead of running; once it lands they run as ordinary tests. The long ones
-are also ``slow`` (run them with ``pytest -m slow``).
+The tests in the second half need the engine's contact model
+(``model.contacts.touching_static``); each calls ``needs_contacts``, which
+reports xfail on an engine without contacts and does nothing once it has
+them. The long ones are ``slow`` (run them with ``pytest -m slow``).
 """
 
 import warnings
@@ -134,8 +134,8 @@ def test_push_is_an_impulse_on_the_chosen_body():
 
 
 def test_default_pushes_hit_chest_or_pelvis():
-    env = make("Ragdoll/Balance-v0", push_interval=(0.02, 0.04), healthy_pelvis_height=-10,
-               healthy_head_height=-10)
+    env = make("Ragdoll/Balance-v0", push_interval=(0.02, 0.04), healthy_pelvis_height=0,
+               healthy_head_height=0, terminate_on_contact=False)
     u = env.unwrapped
     env.reset(seed=1)
     bodies = set()
@@ -167,7 +167,8 @@ def test_feet_touch_the_ground_after_reset():
 
 
 def test_humanoid_rests_on_the_ground_instead_of_sinking():
-    """contacts: with the PD for half a second, the soles stay within 2 cm of the ground."""
+    """contacts: with the PD for half a second, the soles stay within 3 cm of the ground
+    (soft contacts let a standing 75 kg body sink about 2 cm at the default settings)."""
     env = balance(push_strength=0)
     needs_contacts(env)
     u = env.unwrapped
@@ -176,7 +177,7 @@ def test_humanoid_rests_on_the_ground_instead_of_sinking():
     for _ in range(15):
         obs, *_ = env.step(pd.act(obs))
     low = lowest_points(u.model, u.state.position[0], u.state.orientation[0], u.task.humanoid_bodies)
-    assert low.min() > -0.02
+    assert low.min() > -0.03
 
 
 @pytest.mark.slow
