@@ -91,9 +91,13 @@ def run(out: str, scene: str = "stairs", frames: int = 8, seconds: float = 3.0, 
             target[2] = float(np.clip(target[2], 0.5, 1.5))
         return renderer.render(state.position[0], state.orientation[0], target=target)
 
+    worst_anchor = worst_penetration = 0.0
     for k in range(n_steps + 1):
         if k > 0:
             engine.step(model, state, zero)
+            worst_anchor = max(worst_anchor, float(model.joints.anchor_error(state).max()))
+            sep = state.contact_separation
+            worst_penetration = max(worst_penetration, float(-sep[np.isfinite(sep)].min(initial=0.0)))
         if state.nonfinite_worlds().size:
             print(f"the simulation turned non-finite at step {k}; stopping", file=sys.stderr)
             break
@@ -104,6 +108,15 @@ def run(out: str, scene: str = "stairs", frames: int = 8, seconds: float = 3.0, 
                 strip.append(frame)
             if want_video:
                 rendered.append(frame)
+    from engine.diagnostics import kinetic_energy
+
+    speeds = np.linalg.norm(state.velocity[0], axis=-1)
+    print(f"passive ragdoll, {scene}: {n_steps} steps of {dt:g} s")
+    print(f"  largest joint anchor error    {1000 * worst_anchor:8.2f} mm")
+    print(f"  largest contact penetration   {1000 * worst_penetration:8.2f} mm")
+    print(f"  pelvis height at the end      {state.position[0, pelvis, 2]:8.3f} m")
+    print(f"  fastest bone at the end       {speeds.max():8.3f} m/s")
+    print(f"  kinetic energy at the end     {kinetic_energy(model, state)[0]:8.3f} J")
     paths = {"strip": os.path.join(out, f"{scene}_strip.png")}
     frame_strip(strip, paths["strip"], columns=min(4, len(strip)))
     if video:

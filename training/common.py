@@ -1,0 +1,225 @@
+"""Shared helpers of the training CLIs: env ids, run directories, loading, versions."""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import re
+import sys
+from pathlib import Path
+
+CHECKPOINT_DIR = "checkpoints"
+CHECKPOINT_PREFIX = "ppo"
+EVAL_DIR = "eval"
+CONFIG_FILE = "config.json"
+SUMMARY_FILE = "summary.json"
+FINAL_MODEL = "final_model.zip"
+FINAL_VECNORM = "vecnormalize.pkl"
+BEST_MODEL = "best_model.zip"
+BEST_VECNORM = "best_vecnormalize.pkl"
+
+ACTIVATIONS = {"tanh": "Tanh", "relu": "ReLU", "elu": "ELU", "leaky_relu": "LeakyReLU"}
+
+
+class TrainingError(ValueError):
+    """A user-facing error of the training CLIs (bad id, missing run, corrupted file)."""
+
+
+def known_env_ids() -> tuple[str, ...]:
+    import ragdoll_env
+
+    return tuple(ragdoll_env.ENV_IDS)
+
+
+def resolve_env_id(name: str) -> str:
+    """The registered Ragdoll id for ``name`` ("Ragdoll/X-v0", "X-v0" or
+    "ragdoll_env:Ragdoll/X-v0"), else TrainingError naming it and the known ids."""
+    ids = known_env_ids()
+    key = str(name).split(":")[-1]
+    for candidate in (key, "Ragdoll/" + key):
+        if candidate in ids:
+            return candidate
+    raise TrainingError(f"unknown environment id {name!r}; known Ragdoll ids: {', '.join(ids)}")
+
+
+def env_slug(env_id: str) -> str:
+    return env_id.split("/")[-1]
+
+
+def load_config_file(path) -> dict:
+    """A dict from a JSON or YAML file (TrainingError if missing or malformed)."""
+    p = Path(path)
+    if not p.is_file():
+        raise TrainingError(f"config file {str(p)!r} does not exist")
+    text = p.read_text()
+    try:
+        if p.suffix.lower() in (".yaml", ".yml"):
+            import yaml
+
+            data = yaml.safe_load(text)
+        else:
+            data = json.loads(text)
+    except Exception as exc:  # noqa: BLE001 - reported as a clear message
+        raise TrainingError(f"cannot parse config file {str(p)!r}: {exc}") from exc
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        raise TrainingError(f"config file {str(p)!r} must hold a mapping, got {type(data).__name__}")
+    return data
+
+
+def policy_kwargs(kwargs: dict | None) -> dict:
+    """Policy kwargs with ``activation_fn`` given by name turned into the torch class."""
+    import torch.nn as nn
+
+    out = dict(kwargs or {})
+    act = out.get("activation_fn")
+    if isinstance(act, str):
+        name = ACTIVATIONS.get(act.lower(), act)
+        if not hasattr(nn, name):
+            raise TrainingError(f"unknown activation_fn {act!r}; use one of {sorted(ACTIVATIONS)}")
+        out["activation_fn"] = getattr(nn, name)
+    return out
+
+
+def require_run_dir(path) -> Path:
+    p = Path(path)
+    if not p.is_dir():
+        raise TrainingError(f"run directory {str(p)!r} does not exist")
+    if not (p / CONFIG_FILE).is_file():
+        raise TrainingError(f"{str(p)!r} is not a training run directory (no {CONFIG_FILE}; "
+                            "make one with python -m training.train ENV_ID --out DIR)")
+    return p
+
+
+def read_run_config(run_dir) -> dict:
+    p = require_run_dir(run_dir) / CONFIG_FILE
+    try:
+        return json.loads(p.read_text())
+    except Exception as exc:  # noqa: BLE001
+        raise TrainingError(f"cannot read {str(p)!r}: {exc}") from exc
+
+
+_CKPT = re.compile(rf"^{CHECKPOINT_PREFIX}_(\d+)_steps\.zip$")
+
+
+def checkpoints(run_dir) -> list[tuple[int, Path, Path]]:
+    """[(timesteps, model.zip, vecnormalize.pkl)] of the run's checkpoints, oldest first."""
+    d = Path(run_dir) / CHECKPOINT_DIR
+    out = []
+    if d.is_dir():
+        for f in d.iterdir():
+            m = _CKPT.match(f.name)
+            if m:
+                steps = int(m.group(1))
+                out.append((steps, f, d / f"{CHECKPOINT_PREFIX}_vecnormalize_{steps}_steps.pkl"))
+    return sorted(out)
+
+
+def last_checkpoint(run_dir) -> tuple[Path, Path]:
+    """(model, vecnormalize) of the latest checkpoint, for --resume."""
+    ckpts = checkpoints(run_dir)
+    if not ckpts:
+        raise TrainingError(f"run directory {str(run_dir)!r} has no checkpoint in {CHECKPOINT_DIR}/ to resume from")
+    _, model, vecnorm = ckpts[-1]
+    return model, vecnorm
+
+
+def model_for_evaluation(run_dir) -> tuple[str, Path, Path | None]:
+    """(label, model, vecnormalize or None): best model, else final, else last checkpoint."""
+    run = Path(run_dir)
+    if (run / BEST_MODEL).is_file():
+        vn = run / BEST_VECNORM if (run / BEST_VECNORM).is_file() else run / FINAL_VECNORM
+        return "best_model", run / BEST_MODEL, vn if vn.is_file() else None
+    if (run / FINAL_MODEL).is_file():
+        vn = run / FINAL_VECNORM
+        return "final_model", run / FINAL_MODEL, vn if vn.is_file() else None
+    ckpts = checkpoints(run)
+    if ckpts:
+        steps, model, vn = ckpts[-1]
+        return f"checkpoint_{steps}", model, vn if vn.is_file() else None
+    raise TrainingError(f"run directory {str(run)!r} holds no model ({BEST_MODEL}, {FINAL_MODEL} or "
+                        f"{CHECKPOINT_DIR}/{CHECKPOINT_PREFIX}_*_steps.zip)")
+
+
+def load_ppo(path, env=None, device="cpu", custom_objects=None):
+    """PPO.load with a clear TrainingError for a missing or corrupted file."""
+    from stable_baselines3 import PPO
+
+    p = Path(path)
+    if not p.is_file():
+        raise TrainingError(f"model file {str(p)!r} does not exist")
+    try:
+        return PPO.load(str(p), env=env, device=device, custom_objects=custom_objects)
+    except Exception as exc:  # noqa: BLE001 - zipfile/pickle/torch errors become one message
+        raise TrainingError(f"cannot load model {str(p)!r}: the file is corrupted or not a "
+                            f"stable-baselines3 PPO model ({type(exc).__name__}: {exc})") from exc
+
+
+def load_vecnormalize(path, venv):
+    """VecNormalize.load with a clear TrainingError for a missing or corrupted file."""
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    p = Path(path)
+    if not p.is_file():
+        raise TrainingError(f"normalisation statistics {str(p)!r} do not exist")
+    try:
+        return VecNormalize.load(str(p), venv)
+    except Exception as exc:  # noqa: BLE001
+        raise TrainingError(f"cannot load normalisation statistics {str(p)!r}: the file is corrupted "
+                            f"({type(exc).__name__}: {exc})") from exc
+
+
+def versions() -> dict:
+    import gymnasium
+    import numpy
+    import stable_baselines3
+    import torch
+
+    try:
+        from importlib.metadata import version
+
+        ragdoll = version("ragdoll")
+    except Exception:  # noqa: BLE001
+        ragdoll = "unknown"
+    return {
+        "python": sys.version.split()[0],
+        "platform": platform.platform(),
+        "numpy": numpy.__version__,
+        "torch": torch.__version__,
+        "stable_baselines3": stable_baselines3.__version__,
+        "gymnasium": gymnasium.__version__,
+        "ragdoll": ragdoll,
+    }
+
+
+def write_json(path, data) -> None:
+    tmp = Path(str(path) + ".tmp")
+    tmp.write_text(json.dumps(data, indent=2, default=_jsonable) + "\n")
+    os.replace(tmp, path)
+
+
+def _jsonable(obj):
+    try:
+        import numpy as np
+
+        if isinstance(obj, np.generic):
+            return obj.item()
+        if isinstance(obj, np.ndarray):
+            return obj.tolist()
+    except ImportError:
+        pass
+    if isinstance(obj, Path):
+        return str(obj)
+    if isinstance(obj, type):
+        return obj.__name__
+    return repr(obj)
+
+
+def run_cli(main_fn, argv=None):
+    """Run ``main_fn(argv)``; a TrainingError exits with its message (SystemExit)."""
+    try:
+        return main_fn(argv)
+    except TrainingError as exc:
+        raise SystemExit(f"error: {exc}") from None
