@@ -1,0 +1,242 @@
+"""Contact acceptance tests against analytic results: bounce heights e²ⁿh,
+static and kinetic friction on an incline, stopping distance v²/(2 μk g),
+momentum and restitution in head-on collisions, resting contact, stacking,
+fast bodies, and the humanoid landing."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+import engine as e
+from engine.diagnostics import linear_momentum
+from engine.materials import Material
+
+G = e.STANDARD_GRAVITY
+
+
+def apex_heights(zs):
+    """Heights of the local maxima of a sampled trajectory, refined by a
+    parabola through the three samples around each (the step samples miss the
+    true apex by up to g (dt/2)²/2)."""
+    out = []
+    for i in range(1, len(zs) - 1):
+        if zs[i] > zs[i - 1] and zs[i] >= zs[i + 1]:
+            a, b, c = zs[i - 1], zs[i], zs[i + 1]
+            denom = a - 2 * b + c
+            out.append(b - (a - c) ** 2 / (8 * denom) if denom < 0 else b)
+    return np.array(out)
+
+
+def bouncing_ball(restitution, drop=1.0, **settings):
+    b = e.SceneBuilder(**settings)
+    b.materials.add(Material("bouncy", 0.5, 0.4, restitution))
+    b.add_ground(material="bouncy")
+    b.add_body("ball", e.Sphere(0.1), mass=1.0, position=(0, 0, 0.1 + drop), material="bouncy")
+    return b.build()
+
+
+def test_bounce_apex_heights_follow_e_to_the_2n_within_2_percent():
+    # Apex n after a drop from h is e^(2n) h. Semi-implicit Euler's apex from a
+    # launch at speed u is u²/2g + O(u h); the bound leaves room for that.
+    e_ = 0.8
+    model = bouncing_ball(e_)
+    state = model.initial_state(1)
+    zs = []
+    for _ in range(420):
+        e.step(model, state)
+        zs.append(state.position[0, 1, 2] - 0.1)
+    apex = apex_heights(np.array(zs))
+    apex = apex[apex > 0.02][:5]
+    expected = 1.0 * e_ ** (2 * np.arange(1, 6))
+    assert apex.size == 5
+    np.testing.assert_allclose(apex, expected, rtol=0.02)
+
+
+def test_ball_with_zero_restitution_stays_down():
+    model = bouncing_ball(0.0)
+    state = model.initial_state(1)
+    heights = []
+    for _ in range(120):
+        e.step(model, state)
+        heights.append(state.position[0, 1, 2] - 0.1)
+    landed = int(np.argmax(np.array(heights) < 1e-3))
+    assert landed > 0
+    assert max(heights[landed:]) < 1e-3  # never leaves the ground again
+    assert abs(state.velocity[0, 1, 2]) < 1e-3
+
+
+def box_on_incline(angle_deg, material="wood"):
+    th = math.radians(angle_deg)
+    n = np.array([-math.sin(th), 0.0, math.cos(th)])
+    b = e.SceneBuilder()
+    b.add_ground(normal=n, material=material)
+    q = e.math3d.quat_from_axis_angle(np.array([0.0, 1.0, 0.0]), -th)
+    b.add_body("box", e.Box((0.2, 0.15, 0.1)), mass=2.0, position=n * 0.1, orientation=q, material=material)
+    return b.build(), n
+
+
+def test_box_on_incline_below_friction_angle_stays_put():
+    # wood/wood: μs = 0.5, atan(μs) = 26.6°; at 20° static friction holds.
+    model, n = box_on_incline(20.0)
+    state = model.initial_state(1)
+    for _ in range(30):  # let the contact settle (sub-millimetre)
+        e.step(model, state)
+    start = state.position[0, 1].copy()
+    for _ in range(300):  # 5 s
+        e.step(model, state)
+    drift = state.position[0, 1] - start
+    assert np.linalg.norm(drift) < 1e-3
+
+
+def test_box_on_incline_above_friction_angle_slides_with_kinetic_acceleration():
+    # a = g (sin θ − μk cos θ) with μk = 0.2 (wood/wood), within 2%.
+    th = 30.0
+    model, n = box_on_incline(th)
+    state = model.initial_state(1)
+    dt = model.settings.dt
+    d = []
+    for _ in range(120):
+        e.step(model, state)
+        d.append(np.linalg.norm(state.position[0, 1] - model.initial_state(1).position[0, 1]))
+    t = dt * np.arange(1, 121)
+    acc = 2 * np.polyfit(t[30:], np.array(d)[30:], 2)[0]
+    expected = G * (math.sin(math.radians(th)) - 0.2 * math.cos(math.radians(th)))
+    assert acc == pytest.approx(expected, rel=0.02)
+
+
+def test_box_pushed_on_flat_ground_stops_after_v2_over_2_mu_g():
+    v0, mu_k = 3.0, 0.2
+    b = e.SceneBuilder()
+    b.add_ground(material="wood")
+    b.add_body("box", e.Box((0.2, 0.15, 0.1)), mass=2.0, position=(0, 0, 0.1), velocity=(v0, 0, 0),
+               material="wood")
+    model = b.build()
+    state = model.initial_state(1)
+    for _ in range(240):
+        e.step(model, state)
+    assert abs(state.velocity[0, 1, 0]) < 1e-6
+    assert state.position[0, 1, 0] == pytest.approx(v0 ** 2 / (2 * mu_k * G), rel=0.02)
+
+
+def spheres_in_a_row(velocities, restitution, masses=None, spacing=0.2):
+    b = e.SceneBuilder(gravity=None)
+    b.enable("contacts")
+    b.enable("restitution")
+    b.materials.add(Material("ball", 0.0, 0.0, restitution))
+    for i, v in enumerate(velocities):
+        m = 1.0 if masses is None else masses[i]
+        b.add_body(f"s{i}", e.Sphere(0.1), mass=m, position=(i * spacing, 0, 0), velocity=(v, 0, 0),
+                   material="ball")
+    return b.build()
+
+
+@pytest.mark.parametrize("restitution", [1.0, 0.5, 0.0])
+def test_head_on_collision_conserves_momentum_and_matches_restitution(restitution):
+    m1, m2, u1, u2 = 1.0, 3.0, 4.0, -2.0
+    model = spheres_in_a_row([u1, u2], restitution, masses=[m1, m2], spacing=0.5)
+    state = model.initial_state(1)
+    p0 = linear_momentum(model, state)[0]
+    for _ in range(30):
+        e.step(model, state)
+        np.testing.assert_allclose(linear_momentum(model, state)[0], p0, rtol=1e-9, atol=1e-12)
+    v1, v2 = state.velocity[0, 0, 0], state.velocity[0, 1, 0]
+    # 1D collision: v1' = (m1u1 + m2u2 + m2 e (u2−u1))/(m1+m2), and likewise v2'.
+    exp1 = (m1 * u1 + m2 * u2 + m2 * restitution * (u2 - u1)) / (m1 + m2)
+    exp2 = (m1 * u1 + m2 * u2 + m1 * restitution * (u1 - u2)) / (m1 + m2)
+    assert v1 == pytest.approx(exp1, abs=1e-6)
+    assert v2 == pytest.approx(exp2, abs=1e-6)
+
+
+@pytest.mark.xfail(strict=True, reason="touching balls are solved simultaneously: the impulse spreads "
+                                        "(measured last ball 0.63 m/s, first -0.25 m/s); needs sequential "
+                                        "impact propagation in the restitution stage")
+def test_newtons_cradle_passes_the_impulse_down_the_row():
+    # Five touching equal balls, e = 1: the first one's momentum ends up in the last.
+    model = spheres_in_a_row([2.0, 0, 0, 0, 0], 1.0, spacing=0.2)
+    state = model.initial_state(1)
+    state.position[0, 0, 0] -= 0.1  # a gap before the first collision
+    for _ in range(40):
+        e.step(model, state)
+    v = state.velocity[0, :, 0]
+    assert v[-1] == pytest.approx(2.0, abs=0.05)
+    assert np.abs(v[:-1]).max() < 0.05
+    np.testing.assert_allclose(v.sum(), 2.0, rtol=1e-9)
+
+
+def test_box_resting_flat_has_four_points_and_settles():
+    b = e.SceneBuilder()
+    b.add_ground(material="wood")
+    b.add_body("box", e.Box((0.2, 0.15, 0.1)), mass=2.0, position=(0, 0, 0.12), material="wood")
+    model = b.build()
+    state = model.initial_state(1)
+    for _ in range(180):
+        e.step(model, state)
+    assert (state.contact_normal_impulse[0, 0] > 0).sum() == 4
+    assert -state.contact_separation[0, 0] < 1e-3  # penetration under 1 mm
+    assert np.abs(state.velocity[0, 1]).max() < 1e-3
+    assert np.abs(state.angular_velocity[0, 1]).max() < 1e-2
+
+
+def test_stack_of_ten_boxes_stands_for_10_s_with_top_drift_under_1_cm():
+    # Drift is measured from the settled stack (after 1 s): the soft contacts
+    # first compress under the load (about 2 mm at the ground under 10 kg,
+    # reported by benchmarks.accuracy), then the stack must hold still.
+    b = e.SceneBuilder()
+    b.add_ground(material="wood")
+    h = 0.1
+    for i in range(10):
+        b.add_body(f"box{i}", e.Box((0.2, 0.2, h)), mass=1.0, position=(0, 0, h + 2 * h * i), material="wood")
+    model = b.build()
+    state = model.initial_state(1)
+    for _ in range(60):
+        e.step(model, state)
+    top0 = state.position[0, -1].copy()
+    for _ in range(600):
+        e.step(model, state)
+    assert np.linalg.norm(state.position[0, -1] - top0) < 0.01
+    assert np.abs(state.velocity).max() < 1e-2
+
+
+@pytest.mark.parametrize("target", ["ground", "thin_box"])
+def test_capsule_at_100_m_per_s_does_not_pass_through(target):
+    b = e.SceneBuilder(gravity=None)
+    b.add_ground()
+    if target == "thin_box":
+        # A 5 cm thick plate, wide enough that the deflected capsule stays over it.
+        b.add_body("plate", e.Box((5.0, 5.0, 0.025)), static=True, position=(0, 0, 1.0))
+        floor = 1.025
+    else:
+        floor = 0.0
+    q = e.math3d.quat_from_axis_angle(np.array([0.0, 1.0, 0.0]), 0.3)
+    b.add_body("bullet", e.Capsule(0.05, 0.2), mass=1.0, position=(0, 0, floor + 2.0), orientation=q,
+               velocity=(0, 0, -100.0))
+    model = b.build()
+    state = model.initial_state(1)
+    lowest = np.inf
+    for _ in range(20):
+        e.step(model, state)
+        z = state.position[0, -1, 2]
+        lowest = min(lowest, z)
+    # The capsule's centre never gets below the surface (it would need to pass
+    # by its radius plus its tilted half-length to tunnel).
+    assert lowest > floor
+
+
+@pytest.mark.xfail(strict=True, reason="measured: the collapsing doll's forearms still swing at 7 cm/s "
+                                        "after 3 s (every bone under 1 cm/s by 5 s); 0.5 mm penetration")
+def test_humanoid_dropped_from_1_m_settles_without_sinking_or_jitter():
+    from engine.humanoid import add_humanoid
+
+    b = e.SceneBuilder()
+    b.add_ground()
+    add_humanoid(b, position=(0, 0, 1.0))
+    model = b.build()
+    state = model.initial_state(1)
+    for _ in range(180):  # 3 s
+        e.step(model, state)
+    sep = state.contact_separation[np.isfinite(state.contact_separation)]
+    assert -sep.min() < 0.005  # no part more than 5 mm below the ground
+    assert np.linalg.norm(state.velocity[0], axis=-1).max() < 0.01
