@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .coloring import color_pairs
-from .math3d import (cross, dot, mat_vec, quat_conj, quat_mul, quat_rotate, sym3_solve,
+from .math3d import (cross, dot, mat_vec, quat_conj, quat_mul, quat_rotate, skew, sym3_solve,
                      world_inv_inertia)
 from .soft import implicit_spring_impulse, make_soft
 from .state import Event
@@ -112,8 +112,6 @@ class JointSet:
         self.breakable = bool(np.isfinite(self.break_force).any() or np.isfinite(self.break_torque).any())
         self.has_passive = bool((self.damping > 0).any() or (self.stiffness > 0).any())
         self.has_constraints = J > 0
-        has_limit = np.isfinite(self.lower) | np.isfinite(self.upper)
-        has_swing = (self.kind == BALL) & (self.cone < math.pi).any(axis=1)
 
         actuators = []
         for i, j in enumerate(specs):
@@ -127,16 +125,31 @@ class JointSet:
         self.act_axis = np.array([a.axis for a in actuators], dtype=np.int64)
         self.act_max = np.array([a.max_torque for a in actuators], dtype=float)
 
+        self.has_limit = has_limit = np.isfinite(self.lower) | np.isfinite(self.upper)
+        self.has_swing = has_swing = (self.kind == BALL) & (self.cone < math.pi).any(axis=1)
+        self.tree = None
+        in_tree = np.zeros(J, dtype=bool)
+        lim_in_tree = np.zeros(J, dtype=bool)
+        if settings.joint_solver == "tree" and settings.solver == "soft_step" and J:
+            self.tree = _TreeSolver(self, model, settings)
+            in_tree[self.tree.joints] = True
+            if not in_tree.any():
+                self.tree = None
+            elif settings.joint_limits_in_tree and math.isinf(settings.limit_hertz):
+                lim_in_tree = in_tree
+                self.tree.limits = bool((has_limit | has_swing)[self.tree.joints].any())
         colors = color_pairs(self.parent, self.child, model.dynamic)
         self.colors = []
         for idx in colors:
             k = self.kind[idx]
+            gs = ~in_tree[idx]
             self.colors.append({
                 "all": idx,
-                "hinge": idx[k == HINGE],
-                "fixed": idx[k == FIXED],
-                "twist_limit": idx[has_limit[idx]],
-                "swing_limit": idx[has_swing[idx]],
+                "point": idx[gs],
+                "hinge": idx[(k == HINGE) & gs],
+                "fixed": idx[(k == FIXED) & gs],
+                "twist_limit": idx[has_limit[idx] & ~lim_in_tree[idx]],
+                "swing_limit": idx[has_swing[idx] & ~lim_in_tree[idx]],
                 "passive": idx[(self.damping[idx] > 0) | (self.stiffness[idx] > 0)],
             })
         self.effect_names = {"joints"}
@@ -264,6 +277,9 @@ class JointSet:
         self._soft = make_soft(s.joint_hertz, s.joint_damping_ratio, h)
         self._limit_soft = make_soft(s.limit_hertz, s.joint_damping_ratio, h)
         self._substeps_done = 0
+        if self.tree is not None:
+            self.tree.begin_step(self, model, state, h)
+        self._h = h
         if self.breakable:
             # Impulses summed over the step's substeps: the load a joint carries.
             self._lin_sum = np.zeros(state.joint_linear_impulse.shape)
@@ -283,6 +299,11 @@ class JointSet:
     def warm_start(self, model, state):
         if self.breakable and self._substeps_done:
             self._add_load(state)  # λ at the end of the previous substep
+        if self.tree is not None and self._substeps_done:
+            # Inertias at this substep's orientations: fast-turning light links
+            # make the step's start values wrong by the end of the step.
+            self._iinv = world_inv_inertia(state.orientation, model.inv_inertia)
+            self.tree.begin_step(self, model, state, self._h)
         self._substeps_done += 1
         for color in self.colors:
             idx = color["all"]
@@ -303,18 +324,46 @@ class JointSet:
         lam = state.joint_limit_impulse[:, idx]
         if not lam.any():
             return 0.0
-        ax_p = quat_rotate(fpw, np.broadcast_to(_EX, fpw.shape[:-1] + (3,)))
-        ax_c = quat_rotate(fcw, np.broadcast_to(_EX, fpw.shape[:-1] + (3,)))
-        twist_axis = self._twist_axis(ax_p, ax_c, self.kind[idx])
-        _, _, dy, dz = swing_twist(quat_mul(quat_conj(fpw), fcw))
-        swing_axis = quat_rotate(fpw, np.stack((np.zeros(dy.shape), dy, dz), axis=-1))
-        return (lam[..., 0:1] - lam[..., 1:2]) * twist_axis - lam[..., 2:3] * swing_axis
+        Jt, _, Js, _ = self._limit_rows(idx, fpw, fcw)
+        return (lam[..., 0:1] - lam[..., 1:2]) * Jt + lam[..., 2:3] * Js
 
-    @staticmethod
-    def _twist_axis(ax_p, ax_c, kind):
+    def _limit_rows(self, idx, fpw, fcw):
+        """Angular Jacobians (world vectors, Ċ = J·(ω_c - ω_p)) and errors of the
+        twist and swing limits.
+
+        Twist: with a, c the parent's and child's x axes and φ the swing angle,
+        θ̇ = ω·(a + c)/(1 + cos φ) = ω·mid / cos(φ/2) exactly (the swing part of
+        ω has no component along a + c). Swing: C = φ_max(1 - f(s)) with
+        f(s) = ‖(s_y/c_y, s_z/c_z)‖ for the swing vector s = φ d, so the cone's
+        boundary is f = 1 and C ≈ φ_max - φ near it; with n = (0, d), m = a × n
+        (parent frame), ṡ = (ω·n) d + (φ/sin φ)(ω·m) d⊥ + φ θ̇ d⊥.
+        Returns (J_twist, twist, J_swing, C_swing).
+        """
+        shape = fpw.shape[:-1] + (3,)
+        ax_p = quat_rotate(fpw, np.broadcast_to(_EX, shape))
+        ax_c = quat_rotate(fcw, np.broadcast_to(_EX, shape))
+        twist, phi, dy, dz = swing_twist(quat_mul(quat_conj(fpw), fcw))
+        ball = (self.kind[idx] == BALL)[:, None]
         mid = ax_p + ax_c
-        mid = mid / np.maximum(np.sqrt(dot(mid, mid)), 1e-12)[..., None]
-        return np.where((kind == BALL)[:, None], mid, ax_p)
+        mid = mid / np.maximum(dot(mid, mid), 1e-24)[..., None] * 2.0  # (a + c)/(1 + cos φ)
+        Jt = np.where(ball, mid, ax_p)
+        cone = self.cone[idx]
+        cy, cz = cone[:, 0], cone[:, 1]
+        gy, gz = dy / (cy * cy), dz / (cz * cz)
+        f_dir = np.sqrt(gy * dy + gz * dz)  # f(d) = 1/φ_max
+        phi_max = 1.0 / f_dir
+        gy, gz = gy * phi_max, gz * phi_max  # ∇f at s (degree-0 homogeneous)
+        g_n = gy * dy + gz * dz
+        g_m = -gy * dz + gz * dy
+        zero = np.zeros(dy.shape)
+        n = quat_rotate(fpw, np.stack((zero, dy, dz), axis=-1))
+        m = quat_rotate(fpw, np.stack((zero, -dz, dy), axis=-1))
+        sin_phi = np.sin(phi)
+        ratio = np.where(sin_phi > 1e-6, phi / np.where(sin_phi > 1e-6, sin_phi, 1.0), 1.0)
+        Js = -phi_max[..., None] * (g_n[..., None] * n + (g_m * ratio)[..., None] * m
+                                    + (g_m * phi)[..., None] * mid)
+        C_swing = phi_max * (1.0 - phi * f_dir)
+        return Jt, twist, Js, C_swing
 
     def _apply(self, model, state, a, b, ra, rb, P, L):
         """Apply linear impulse P at the anchors and angular impulse L (to the
@@ -337,7 +386,11 @@ class JointSet:
                 self._solve_hinge_lock(model, state, color["hinge"], h, use_bias and not rigid_bias, soft)
             if color["fixed"].size:
                 self._solve_fixed_lock(model, state, color["fixed"], h, use_bias and not rigid_bias, soft)
-            self._solve_point(model, state, color["all"], h, use_bias and not rigid_bias, soft)
+            if color["point"].size:
+                self._solve_point(model, state, color["point"], h, use_bias and not rigid_bias, soft)
+        if self.tree is not None:
+            bias_rate, mass_scale, impulse_scale = self._soft_terms(use_bias, soft)
+            self.tree.solve(self, model, state, bias_rate, mass_scale, impulse_scale, use_bias, h)
 
     def _soft_terms(self, use_bias, soft):
         if use_bias:
@@ -434,25 +487,18 @@ class JointSet:
 
     def _solve_twist_limits(self, model, state, idx, h, use_bias, soft):
         a, b, fpw, fcw, _, _ = self.frames(state, idx)
-        shape = fpw.shape[:-1] + (3,)
-        ax_p = quat_rotate(fpw, np.broadcast_to(_EX, shape))
-        ax_c = quat_rotate(fcw, np.broadcast_to(_EX, shape))
-        axis = self._twist_axis(ax_p, ax_c, self.kind[idx])
-        twist, _, _, _ = swing_twist(quat_mul(quat_conj(fpw), fcw))
+        Jt, twist, _, _ = self._limit_rows(idx, fpw, fcw)
         lo, hi = self.lower[idx], self.upper[idx]
         has_lo, has_hi = np.isfinite(lo), np.isfinite(hi)
-        C_lo = np.where(has_lo, twist - np.where(has_lo, lo, 0.0), np.inf)
-        self._one_sided(state, a, b, axis, np.where(has_lo, C_lo, 1e9), 0, idx, h, use_bias, soft)
+        C_lo = np.where(has_lo, twist - np.where(has_lo, lo, 0.0), 1e9)
+        self._one_sided(state, a, b, Jt, C_lo, 0, idx, h, use_bias, soft)
         C_hi = np.where(has_hi, np.where(has_hi, hi, 0.0) - twist, 1e9)
-        self._one_sided(state, a, b, -axis, C_hi, 1, idx, h, use_bias, soft)
+        self._one_sided(state, a, b, -Jt, C_hi, 1, idx, h, use_bias, soft)
 
     def _solve_swing_limits(self, model, state, idx, h, use_bias, soft):
         a, b, fpw, fcw, _, _ = self.frames(state, idx)
-        _, phi, dy, dz = swing_twist(quat_mul(quat_conj(fpw), fcw))
-        cone = self.cone[idx]
-        phi_max = 1.0 / np.sqrt((dy / cone[:, 0]) ** 2 + (dz / cone[:, 1]) ** 2)
-        axis = quat_rotate(fpw, np.stack((np.zeros(dy.shape), dy, dz), axis=-1))
-        self._one_sided(state, a, b, -axis, phi_max - phi, 2, idx, h, use_bias, soft)
+        _, _, Js, C = self._limit_rows(idx, fpw, fcw)
+        self._one_sided(state, a, b, Js, C, 2, idx, h, use_bias, soft)
 
     def end_step(self, model, state, h, events):
         if self.settings.solver == "thesis":
@@ -505,3 +551,465 @@ def compile_joints(model, builder):
     if not builder.joints:
         return None
     return JointSet(model, builder.joints, builder.settings)
+
+
+# --------------------------------------------------------------------------------------
+# Direct tree solve of the joint equality rows (Baraff 1996, "Linear-time dynamics
+# using Lagrange multipliers").
+#
+# The bodies and joints of an articulation form a tree of nodes (body - joint -
+# body ...). The system  [M  Jᵀ; J  0] [y; z] = [0; r]  has that tree's sparsity,
+# so its block LDLᵀ factorisation in leaves-first order has no fill-in and gives
+# x = -z = (J M⁻¹ Jᵀ)⁻¹ r exactly in time linear in the number of bodies. Each
+# joint node has 6 rows: 3 point rows and 3 angular lock rows (hinge: y, z of the
+# parent frame; fixed: world x, y, z; ball: none); unused rows get -1 on the
+# diagonal and no coupling, so they solve to 0. Nodes of one (depth, kind) are one
+# vectorised group; 6x6 products are written out over the inner index so the
+# result of a world never depends on the number of worlds.
+
+
+def _mm(A, B):
+    """(..., n, k) @ (..., k, m) written out over k."""
+    out = A[..., :, 0, None] * B[..., None, 0, :]
+    for k in range(1, A.shape[-1]):
+        out = out + A[..., :, k, None] * B[..., None, k, :]
+    return out
+
+
+def _mtm(A, B):
+    """Aᵀ B for (..., k, n), (..., k, m)."""
+    out = A[..., 0, :, None] * B[..., None, 0, :]
+    for k in range(1, A.shape[-2]):
+        out = out + A[..., k, :, None] * B[..., None, k, :]
+    return out
+
+
+def _mv(A, x):
+    out = A[..., :, 0] * x[..., 0, None]
+    for k in range(1, A.shape[-1]):
+        out = out + A[..., :, k] * x[..., k, None]
+    return out
+
+
+def _mtv(A, x):
+    out = A[..., 0, :] * x[..., 0, None]
+    for k in range(1, A.shape[-2]):
+        out = out + A[..., k, :] * x[..., k, None]
+    return out
+
+
+def _inv_definite(A):
+    """Inverse of definite (..., n, n) matrices by in-place Gauss-Jordan without pivoting."""
+    n = A.shape[-1]
+    M = A.copy()
+    for k in range(n):
+        piv = 1.0 / M[..., k, k]
+        row = M[..., k, :] * piv[..., None]
+        col = M[..., :, k].copy()
+        M -= col[..., :, None] * row[..., None, :]
+        M[..., :, k] = -col * piv[..., None]
+        M[..., k, :] = row
+        M[..., k, k] = piv
+    return M
+
+
+def _unique_splits(targets):
+    """Split positions 0..len-1 into lists whose targets are unique, so that
+    ``out[:, t[sel]] += v[:, sel]`` needs no np.add.at (fixed, sequential order)."""
+    splits, seen = [], []
+    for i, t in enumerate(np.asarray(targets).tolist()):
+        for k, used in enumerate(seen):
+            if t not in used:
+                used.add(t)
+                splits[k].append(i)
+                break
+        else:
+            seen.append({t})
+            splits.append([i])
+    return [(np.array(sel), np.asarray(targets)[sel]) for sel in splits]
+
+
+def _scatter_add(out, splits, v):
+    for sel, tgt in splits:
+        out[:, tgt] += v[:, sel]
+
+
+class _JointTree:
+    """Static layout of the joint tree: nodes, their parents and depth groups."""
+
+    def __init__(self, parent, child, dynamic):
+        J = len(parent)
+        adj = {}
+        self.joints = []  # joints solved by the tree
+        # Union-find over dynamic bodies; a joint closing a loop stays Gauss-Seidel.
+        root_of = {}
+
+        def find(x):
+            while root_of.get(x, x) != x:
+                x = root_of[x]
+            return x
+
+        anchored = set()  # components attached to a static body
+        for j in range(J):
+            a, b = int(parent[j]), int(child[j])
+            da, db = bool(dynamic[a]), bool(dynamic[b])
+            if not (da or db):
+                continue
+            if da and db:
+                ra, rb = find(a), find(b)
+                if ra == rb:
+                    continue
+                if ra in anchored and rb in anchored:
+                    continue  # would join two anchored trees: a loop through the world
+                root_of[rb] = ra
+                if rb in anchored:
+                    anchored.discard(rb)
+                    anchored.add(ra)
+            else:
+                r = find(a if da else b)
+                if r in anchored:
+                    continue
+                anchored.add(r)
+            self.joints.append(j)
+            for x in (a, b):
+                if dynamic[x]:
+                    adj.setdefault(x, []).append(j)
+        self.joints = np.array(self.joints, dtype=np.int64)
+        bodies = sorted(adj)
+        self.bodies = np.array(bodies, dtype=np.int64)
+        nb = len(bodies)
+        body_node = {b: i for i, b in enumerate(bodies)}
+        joint_node = {int(j): nb + k for k, j in enumerate(self.joints)}
+        n = nb + len(self.joints)
+        node_parent = np.full(n, -1, dtype=np.int64)
+        depth = np.full(n, -1, dtype=np.int64)
+        # For joint nodes: whether the joint's parent body (side a) is the tree parent.
+        self.a_is_parent = np.zeros(len(self.joints), dtype=bool)
+        jset = set(int(j) for j in self.joints)
+        # Roots: the static-anchored joint of a component, else its lowest body.
+        visited = set()
+        order = []
+        roots = [joint_node[int(j)] for j in self.joints
+                 if not (dynamic[parent[j]] and dynamic[child[j]])]
+        for b in bodies:
+            roots.append(body_node[b])
+        for r in roots:
+            if depth[r] >= 0:
+                continue
+            if r < nb and find(bodies[r]) in anchored:
+                continue  # anchored component: rooted at its static joint
+            depth[r] = 0
+            stack = [r]
+            while stack:
+                u = stack.pop()
+                order.append(u)
+                if u < nb:
+                    nbrs = [joint_node[j] for j in adj[bodies[u]]]
+                else:
+                    j = int(self.joints[u - nb])
+                    nbrs = [body_node[int(x)] for x in (parent[j], child[j]) if dynamic[x]]
+                for v in nbrs:
+                    if depth[v] < 0:
+                        depth[v] = depth[u] + 1
+                        node_parent[v] = u
+                        stack.append(v)
+        assert (depth >= 0).all()
+        for k, j in enumerate(self.joints):
+            p = node_parent[nb + k]
+            self.a_is_parent[k] = p >= 0 and bodies[p] == parent[j]
+        self.n_nodes, self.n_bodies = n, nb
+        self.node_parent = node_parent
+        groups = []
+        for d in range(int(depth.max()) + 1 if n else 0):
+            for is_body in (True, False):
+                ids = np.flatnonzero((depth == d) & ((np.arange(n) < nb) == is_body))
+                if ids.size:
+                    groups.append((ids, node_parent[ids], _unique_splits(node_parent[ids])))
+        self.groups = groups[::-1]  # deepest first
+        self.body_pos = body_node
+
+
+def _inv3_sym(k):
+    """Inverse of symmetric (..., 3, 3) matrices by the adjugate."""
+    a00, a01, a02 = k[..., 0, 0], k[..., 0, 1], k[..., 0, 2]
+    a11, a12, a22 = k[..., 1, 1], k[..., 1, 2], k[..., 2, 2]
+    c00 = a11 * a22 - a12 * a12
+    c01 = a02 * a12 - a01 * a22
+    c02 = a01 * a12 - a02 * a11
+    c11 = a00 * a22 - a02 * a02
+    c12 = a01 * a02 - a00 * a12
+    c22 = a00 * a11 - a01 * a01
+    inv_det = 1.0 / (a00 * c00 + a01 * c01 + a02 * c02)
+    out = np.empty(k.shape)
+    out[..., 0, 0], out[..., 0, 1], out[..., 0, 2] = c00 * inv_det, c01 * inv_det, c02 * inv_det
+    out[..., 1, 0], out[..., 1, 1], out[..., 1, 2] = c01 * inv_det, c11 * inv_det, c12 * inv_det
+    out[..., 2, 0], out[..., 2, 1], out[..., 2, 2] = c02 * inv_det, c12 * inv_det, c22 * inv_det
+    return out
+
+
+class _TreeSolver:
+    """Per-substep factorisation and solve of the joint tree (see ``_JointTree``)."""
+
+    def __init__(self, js, model, settings):
+        t = _JointTree(js.parent, js.child, model.dynamic)
+        self.t = t
+        self.joints = t.joints
+        j = t.joints
+        root = t.node_parent[t.n_bodies:] < 0
+        dyn_b = model.dynamic[js.child[j]]
+        self.child_is_b = np.where(root, dyn_b, t.a_is_parent)
+        self.kind = js.kind[j]
+        # Angular lock rows used per kind (rows 3..5).
+        self.ang_mask = np.zeros((len(j), 3))
+        self.ang_mask[self.kind == HINGE, 1:] = 1.0
+        self.ang_mask[self.kind == FIXED] = 1.0
+        # Body node of each joint's tree child, to fill the body -> parent-joint blocks.
+        nb = t.n_bodies
+        self.body_parent_joint = np.where(t.node_parent[:nb] >= 0, t.node_parent[:nb] - nb, -1)
+        self.num_bodies = model.num_bodies
+        self.split_a = _unique_splits(js.parent[j])
+        self.split_b = _unique_splits(js.child[j])
+        self.limits = False
+        self.active_set_passes = settings.joint_active_set_passes
+
+    def begin_step(self, js, model, state, h):
+        t = self.t
+        b = t.bodies
+        W = state.orientation.shape[0]
+        M = np.zeros((W, t.n_bodies, 6, 6))
+        m = model.mass[b]
+        for k in range(3):
+            M[..., k, k] = m
+        I = world_inv_inertia(state.orientation[:, b], model.inertia[b])
+        self.iinv = js._iinv
+        if js.settings.joint_geometric_stiffness:
+            # Geometric stiffness (Andrews, Teichmann & Kry 2017; Tournier et al.
+            # 2015): a joint carrying force f at lever arm r resists turning the
+            # body with stiffness ~ |f| (|r|² I - r rᵀ)/|r|; its implicit-Euler
+            # share h² K is added to the body's inertia in the joint solve, which
+            # keeps light links between heavy loads from the explicit
+            # instability of the constraint-force direction.
+            idx = self.joints
+            _, _, _, _, ra, rb = js.frames(state, idx)
+            lam = state.joint_linear_impulse[:, idx]
+            f = np.sqrt(dot(lam, lam)) * h  # h² |F| = h |λ|
+            G = np.zeros((W, model.num_bodies, 3, 3))
+            for body, r in ((js.parent[idx], ra), (js.child[idx], rb)):
+                rn = np.sqrt(dot(r, r))
+                g = f / np.maximum(rn, 1e-12)
+                K = -r[..., :, None] * r[..., None, :]
+                for k in range(3):
+                    K[..., k, k] += rn * rn
+                np.add.at(G, (slice(None), body), g[..., None, None] * K)
+            # Capped at a few times the body's own inertia: the stiffness grows with
+            # the load, and the load needed to turn a heavier body grows with it.
+            G = G[:, b]
+            trI = I[..., 0, 0] + I[..., 1, 1] + I[..., 2, 2]
+            trG = G[..., 0, 0] + G[..., 1, 1] + G[..., 2, 2]
+            cap = js.settings.joint_geometric_stiffness_cap * trI
+            scale = np.where(trG > cap, cap / np.where(trG > cap, trG, 1.0), 1.0)
+            I = I + G * scale[..., None, None]
+            inv = js._iinv.copy()
+            inv[:, b] = _inv3_sym(I)
+            # Every joint row (warm start, limits, tree) uses the same metric.
+            js._iinv = self.iinv = inv
+        M[..., 3:, 3:] = I
+        self.M = M
+
+    def jacobians(self, js, state, use_bias, bias_rate):
+        """Jacobian blocks (W, nj, 6, 6) of each tree joint wrt its sides a and b,
+        the row mask and the right-hand side J·u + bias·C."""
+        idx = self.joints
+        a, b, fpw, fcw, ra, rb = js.frames(state, idx)
+        shape = ra.shape
+        W, nj = shape[0], shape[1]
+        act = js._active(state, idx)
+        mask = np.empty((W, nj, 6))
+        mask[..., :3] = act[..., None]
+        mask[..., 3:] = act[..., None] * self.ang_mask
+        hinge = (self.kind == HINGE)[:, None, None]
+        fixed = (self.kind == FIXED)[:, None, None]
+        by = quat_rotate(fpw, np.broadcast_to(_EY, shape))
+        bz = quat_rotate(fpw, np.broadcast_to(_EZ, shape))
+        E = np.zeros((W, nj, 3, 3))
+        E[..., 1, :] = by
+        E[..., 2, :] = bz
+        E = np.where(hinge, E, np.where(fixed, np.eye(3), 0.0))
+        Jb = np.zeros((W, nj, 6, 6))
+        Ja = np.zeros((W, nj, 6, 6))
+        sb, sa = skew(rb), skew(ra)
+        for k in range(3):
+            Jb[..., k, k] = 1.0
+            Ja[..., k, k] = -1.0
+        Jb[..., :3, 3:] = -sb
+        Ja[..., :3, 3:] = sa
+        Jb[..., 3:, 3:] = E
+        Ja[..., 3:, 3:] = -E
+        Jb *= mask[..., None]
+        Ja *= mask[..., None]
+        va, vb = state.velocity[:, a], state.velocity[:, b]
+        wa, wb = state.angular_velocity[:, a], state.angular_velocity[:, b]
+        r = np.empty((W, nj, 6))
+        r[..., :3] = vb + cross(wb, rb) - va - cross(wa, ra)
+        wrel = wb - wa
+        r[..., 3:] = mat_vec(E, wrel)
+        if use_bias and bias_rate:
+            xa, xb = state.position[:, a], state.position[:, b]
+            r[..., :3] += bias_rate * (xb + rb - xa - ra)
+            ax_p = quat_rotate(fpw, np.broadcast_to(_EX, shape))
+            ax_c = quat_rotate(fcw, np.broadcast_to(_EX, shape))
+            herr = cross(ax_p, ax_c)
+            qd = quat_mul(fcw, quat_conj(fpw))
+            ferr = 2.0 * qd[..., 1:] * np.where(qd[..., 0:1] < 0, -1.0, 1.0)
+            aerr = np.where(hinge[..., 0], mat_vec(E, herr), ferr)
+            r[..., 3:] += bias_rate * aerr
+        r *= mask
+        return a, b, Ja, Jb, mask, r
+
+    def limit_rows(self, js, state, h, use_bias):
+        """Limit rows in the free angular slots of each tree joint: hinge slot 3
+        (twist), ball slots 3 (twist) and 4 (swing). The accumulated limit impulse
+        is taken off the velocities first, so the active-set solve finds the
+        whole (rigid, one-sided) limit impulse afresh.
+        Returns J rows (W, nj, 3, 3), rhs (W, nj, 3), sign σ (W, nj, 3) with
+        σ·λ >= 0 required, and which rows exist (W, nj, 3)."""
+        idx = self.joints
+        a, b, fpw, fcw, _, _ = js.frames(state, idx)
+        lam = state.joint_limit_impulse[:, idx]
+        Jt, twist, Js, Cs = js._limit_rows(idx, fpw, fcw)
+        # Remove the warm-started limit impulse.
+        L = (lam[..., 0:1] - lam[..., 1:2]) * Jt + lam[..., 2:3] * Js
+        np.add.at(state.angular_velocity, (slice(None), a), mat_vec(js._iinv[:, a], L))
+        np.add.at(state.angular_velocity, (slice(None), b), -mat_vec(js._iinv[:, b], L))
+        state.joint_limit_impulse[:, idx] = 0.0
+        lo, hi = js.lower[idx], js.upper[idx]
+        C_lo = np.where(np.isfinite(lo), twist - np.where(np.isfinite(lo), lo, 0.0), np.inf)
+        C_hi = np.where(np.isfinite(hi), np.where(np.isfinite(hi), hi, 0.0) - twist, np.inf)
+        lower = C_lo <= C_hi
+        sigma_t = np.where(lower, 1.0, -1.0)
+        C_t = np.minimum(C_lo, C_hi)
+        W, nj = twist.shape
+        rows = np.zeros((W, nj, 3, 3))
+        rows[..., 0, :] = Jt
+        rows[..., 1, :] = np.where((self.kind == BALL)[:, None], Js, 0.0)
+        exists = np.zeros((W, nj, 3), dtype=bool)
+        exists[..., 0] = np.broadcast_to(js.has_limit[idx], (W, nj)) & (self.kind != FIXED)
+        exists[..., 1] = np.broadcast_to(js.has_swing[idx], (W, nj))
+        exists &= (js._active(state, idx) > 0)[..., None]
+        sigma = np.ones((W, nj, 3))
+        sigma[..., 0] = sigma_t
+        C = np.stack((np.where(exists[..., 0], C_t, 0.0), np.where(exists[..., 1], Cs, 0.0), np.zeros((W, nj))), -1)
+        wrel = state.angular_velocity[:, b] - state.angular_velocity[:, a]
+        r = mat_vec(rows, wrel)
+        # Speculative while open (C/h), rigid position bias when violated in
+        # the biased solve, none in the relax solve.
+        bias = np.where(C > 0, C / h, C / h if use_bias else 0.0)
+        r = r + sigma * bias
+        r = np.where(exists, r, 0.0)
+        return rows, r, sigma, exists, lower
+
+    def solve(self, js, model, state, bias_rate, mass_scale, impulse_scale, use_bias, h):
+        t = self.t
+        nb = t.n_bodies
+        if self.limits:
+            lrows, lr, sigma, exists, lower = self.limit_rows(js, state, h, use_bias)
+        a, b, Ja, Jb, mask, r = self.jacobians(js, state, use_bias, bias_rate)
+        W = r.shape[0]
+        if not self.limits:
+            x = self._factor_solve(Ja, Jb, mask, r)
+            d = (-mass_scale * x - impulse_scale * self._lam(state)) * mask
+            self._apply(js, model, state, a, b, Ja, Jb, d)
+            return
+        # Active set over the limit rows: start from the rows the current
+        # velocities would violate, drop rows that pull, re-solve.
+        active = exists & (sigma * lr < 0)
+        for _ in range(self.active_set_passes):
+            m2 = mask.copy()
+            Ja2, Jb2, r2 = Ja.copy(), Jb.copy(), r.copy()
+            for k in range(2):
+                use = active[..., k]
+                row = 3 + k
+                u = use[..., None]
+                Jb2[..., row, 3:] = np.where(u, lrows[..., k, :], Jb2[..., row, 3:])
+                Ja2[..., row, 3:] = np.where(u, -lrows[..., k, :], Ja2[..., row, 3:])
+                r2[..., row] = np.where(use, lr[..., k], r2[..., row])
+                m2[..., row] = np.where(use, 1.0, m2[..., row])
+            x = self._factor_solve(Ja2, Jb2, m2, r2)
+            lam_lim = -x[..., 3:5]
+            bad = active[..., :2] & (sigma[..., :2] * lam_lim < 0)
+            if not bad.any():
+                break
+            active[..., :2] &= ~bad
+        lim = m2 - mask  # rows taken by limits (free slots of the joint): rigid, whole λ
+        d = (-mass_scale * x - impulse_scale * self._lam(state)) * mask - x * lim
+        self._apply(js, model, state, a, b, Ja2, Jb2, d)
+        # Store: twist row impulse is λ_lo - λ_hi, swing row λ_swing.
+        idx = self.joints
+        tw = d[..., 3] * lim[..., 3]
+        state.joint_limit_impulse[:, idx, 0] = np.where(lower, tw, 0.0)
+        state.joint_limit_impulse[:, idx, 1] = np.where(lower, 0.0, -tw)
+        state.joint_limit_impulse[:, idx, 2] = d[..., 4] * lim[..., 4]
+
+    def _lam(self, state):
+        idx = self.joints
+        return np.concatenate((state.joint_linear_impulse[:, idx], state.joint_angular_impulse[:, idx]), axis=-1)
+
+    def _apply(self, js, model, state, a, b, Ja, Jb, d):
+        """Accumulate the equality-row impulses d (rows 3..5 of limit-taken slots
+        are not stored here) and apply J_aᵀ d, J_bᵀ d."""
+        idx = self.joints
+        lam = self._lam(state)
+        eqmask = np.zeros(d.shape)
+        eqmask[..., :3] = 1.0
+        eqmask[..., 3:] = self.ang_mask
+        new = lam + d * eqmask
+        state.joint_linear_impulse[:, idx] = new[..., :3]
+        state.joint_angular_impulse[:, idx] = new[..., 3:]
+        W = d.shape[0]
+        imp = np.zeros((W, self.num_bodies, 6))
+        _scatter_add(imp, self.split_a, _mtv(Ja, d))
+        _scatter_add(imp, self.split_b, _mtv(Jb, d))
+        state.velocity += imp[..., :3] * model.inv_mass[:, None]
+        state.angular_velocity += mat_vec(self.iinv, imp[..., 3:])
+
+    def _factor_solve(self, Ja, Jb, mask, r):
+        """(J M⁻¹ Jᵀ)⁻¹ r over the rows in mask (others 0)."""
+        t = self.t
+        nb = t.n_bodies
+        W = r.shape[0]
+        cb = self.child_is_b[:, None, None]
+        Jc = np.where(cb, Jb, Ja)  # block of the joint's tree child body
+        Jp = np.where(cb, Ja, Jb)  # block of its tree parent body (unused for roots)
+        n = t.n_nodes
+        Hd = np.zeros((W, n, 6, 6))
+        Hd[:, :nb] = self.M
+        for k in range(6):
+            Hd[:, nb:, k, k] = mask[..., k] - 1.0
+        Hp = np.zeros((W, n, 6, 6))
+        Hp[:, nb:] = Jp
+        has = self.body_parent_joint >= 0
+        Hp[:, np.flatnonzero(has)] = np.swapaxes(Jc[:, self.body_parent_joint[has]], -1, -2)
+        rhs = np.zeros((W, n, 6))
+        rhs[:, nb:] = r
+        # Factor and forward substitution, deepest nodes first.
+        acc = np.zeros((W, n, 6, 6))
+        accb = np.zeros((W, n, 6))
+        Dinv, L, bp = {}, {}, {}
+        for gi, (ids, par, splits) in enumerate(t.groups):
+            D = Hd[:, ids] - acc[:, ids]
+            Di = _inv_definite(D)
+            Dinv[gi] = Di
+            bp[gi] = rhs[:, ids] - accb[:, ids]
+            if par[0] >= 0:
+                Lg = _mm(Di, Hp[:, ids])
+                L[gi] = Lg
+                _scatter_add(acc, splits, _mtm(Hp[:, ids], Lg))
+                _scatter_add(accb, splits, _mtv(Lg, bp[gi]))
+        x = np.zeros((W, n, 6))
+        for gi in range(len(t.groups) - 1, -1, -1):
+            ids, par, _ = t.groups[gi]
+            xi = _mv(Dinv[gi], bp[gi])
+            if par[0] >= 0:
+                xi = xi - _mv(L[gi], x[:, par])
+            x[:, ids] = xi
+        return -x[:, nb:]  # (J M⁻¹ Jᵀ)⁻¹ r per joint
