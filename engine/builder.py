@@ -445,9 +445,19 @@ class SceneBuilder:
         self.effects[effect] = params
 
     def disable(self, effect: str) -> None:
-        """Remove a declared effect (gravity, contacts, ...)."""
+        """Remove a declared effect (gravity, contacts, friction, restitution, ...).
+
+        Effects implied by what the scene holds (springs, joints, joint limits,
+        motors) are removed by leaving those items out; asking to disable one
+        raises, rather than silently keeping it.
+        """
         if effect not in ALL_EFFECTS:
             raise SceneError(f"unknown effect {effect!r}; effects: {list(ALL_EFFECTS)}")
+        if effect not in DECLARABLE_EFFECTS:
+            raise SceneError(
+                f"effect {effect!r} is implied by the scene's items, not declared: build the scene "
+                f"without them (no springs / joints / limits / max_torque) to drop it"
+            )
         self.effects.pop(effect, None)
         if effect == "gravity":
             self.gravity = None

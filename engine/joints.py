@@ -773,6 +773,7 @@ class _TreeSolver:
         self.active_set_passes = settings.joint_active_set_passes
 
     def begin_step(self, js, model, state, h):
+        self._factors = None
         t = self.t
         b = t.bodies
         W = state.orientation.shape[0]
@@ -916,7 +917,13 @@ class _TreeSolver:
         a, b, Ja, Jb, mask, r = self.jacobians(js, state, use_bias, bias_rate)
         W = r.shape[0]
         if not self.limits:
-            x = self._factor_solve(Ja, Jb, mask, r)
+            # One factorisation per substep, shared by the biased and the relax
+            # solve (as Box2D keeps its effective masses for the step): the
+            # relax solve's Jacobians differ only by one substep's motion.
+            # (Not with geometric stiffness, whose metric moves with the load.)
+            if self._factors is None or js.settings.joint_geometric_stiffness:
+                self._factors = self._factor(Ja, Jb, mask)
+            x = self._substitute(self._factors, r)
             d = (-mass_scale * x - impulse_scale * self._lam(state)) * mask
             self._apply(js, model, state, a, b, Ja, Jb, d)
             return
@@ -974,9 +981,13 @@ class _TreeSolver:
 
     def _factor_solve(self, Ja, Jb, mask, r):
         """(J M⁻¹ Jᵀ)⁻¹ r over the rows in mask (others 0)."""
+        return self._substitute(self._factor(Ja, Jb, mask), r)
+
+    def _factor(self, Ja, Jb, mask):
+        """Block LDLᵀ factors of [M Jᵀ; J 0] in leaves-first order."""
         t = self.t
         nb = t.n_bodies
-        W = r.shape[0]
+        W = mask.shape[0]
         cb = self.child_is_b[:, None, None]
         Jc = np.where(cb, Jb, Ja)  # block of the joint's tree child body
         Jp = np.where(cb, Ja, Jb)  # block of its tree parent body (unused for roots)
@@ -989,22 +1000,32 @@ class _TreeSolver:
         Hp[:, nb:] = Jp
         has = self.body_parent_joint >= 0
         Hp[:, np.flatnonzero(has)] = np.swapaxes(Jc[:, self.body_parent_joint[has]], -1, -2)
-        rhs = np.zeros((W, n, 6))
-        rhs[:, nb:] = r
-        # Factor and forward substitution, deepest nodes first.
         acc = np.zeros((W, n, 6, 6))
-        accb = np.zeros((W, n, 6))
-        Dinv, L, bp = {}, {}, {}
+        Dinv, L = {}, {}
         for gi, (ids, par, splits) in enumerate(t.groups):
-            D = Hd[:, ids] - acc[:, ids]
-            Di = _inv_definite(D)
+            Di = _inv_definite(Hd[:, ids] - acc[:, ids])
             Dinv[gi] = Di
-            bp[gi] = rhs[:, ids] - accb[:, ids]
             if par[0] >= 0:
                 Lg = _mm(Di, Hp[:, ids])
                 L[gi] = Lg
                 _scatter_add(acc, splits, _mtm(Hp[:, ids], Lg))
-                _scatter_add(accb, splits, _mtv(Lg, bp[gi]))
+        return Dinv, L
+
+    def _substitute(self, factors, r):
+        """Forward and back substitution with the factors of ``_factor``."""
+        Dinv, L = factors
+        t = self.t
+        nb = t.n_bodies
+        W = r.shape[0]
+        n = t.n_nodes
+        rhs = np.zeros((W, n, 6))
+        rhs[:, nb:] = r
+        accb = np.zeros((W, n, 6))
+        bp = {}
+        for gi, (ids, par, splits) in enumerate(t.groups):
+            bp[gi] = rhs[:, ids] - accb[:, ids]
+            if par[0] >= 0:
+                _scatter_add(accb, splits, _mtv(L[gi], bp[gi]))
         x = np.zeros((W, n, 6))
         for gi in range(len(t.groups) - 1, -1, -1):
             ids, par, _ = t.groups[gi]

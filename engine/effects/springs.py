@@ -8,7 +8,8 @@ breaks for good in that world and an event says so.
 
 Two integration paths, chosen per spring at build time:
 
-* compliant springs (ω h < 0.25 with ω² = k / m_reduced, h the substep) are
+* compliant springs (ω h < 1 with ω² = k / m_reduced, h the substep; the
+  symplectic update is stable to ω h < 2) are
   explicit forces, integrated symplectically: no artificial damping, energy
   conserved to O(h²);
 * stiff springs (k h² / m far above 1, where explicit integration explodes) are
@@ -30,7 +31,7 @@ from ..math3d import cross, dot, quat_rotate
 from ..soft import implicit_spring_impulse
 from ..state import Event
 
-STIFF_OMEGA_H = 0.25
+STIFF_OMEGA_H = 1.0
 
 
 def _inv_inertia_world_apply(q, inv_inertia_body, v):

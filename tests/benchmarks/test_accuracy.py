@@ -1,0 +1,50 @@
+import json
+import math
+
+import pytest
+
+from benchmarks.accuracy import PRIMARY, main
+
+SCENARIOS = ["pendulum", "spring", "bouncing_ball", "ragdoll"]
+
+
+def finite_or_none(v):
+    return v is None or (isinstance(v, float) and math.isfinite(v))
+
+
+def test_quick_subset_writes_rows_markdown_and_plot(tmp_path):
+    pytest.importorskip("matplotlib")
+    path = tmp_path / "accuracy.json"
+    main(["--quick", "--scenarios", *SCENARIOS, "--settings", "dt=1/30 sub=1", "thesis dt=1/60",
+          "--duration-scale", "0.1", "--no-mujoco", "--json", str(path), "--out-dir", str(tmp_path)])
+    rows = json.loads(path.read_text())
+    assert isinstance(rows, list) and rows
+    for r in rows:
+        assert {"scenario", "settings", "errors", "wall_s_per_sim_s"} <= r.keys()
+        assert r["scenario"] in SCENARIOS
+        assert isinstance(r["settings"], dict) and isinstance(r["errors"], dict)
+        assert all(finite_or_none(v) for v in r["errors"].values())
+        assert r["wall_s_per_sim_s"] is None or r["wall_s_per_sim_s"] > 0
+    for name in SCENARIOS:
+        defaults = [r for r in rows if r["scenario"] == name and r["settings"].get("default") is True]
+        assert len(defaults) == 1, name
+        assert PRIMARY[name] in defaults[0]["errors"]
+        assert defaults[0]["settings"]["solver"] == "soft_step"
+    assert any(r["settings"].get("thesis_baseline") for r in rows)
+    ragdoll = next(r for r in rows if r["scenario"] == "ragdoll" and r["settings"]["default"])
+    assert {"anchor_error_max_m", "limit_violation_max_rad", "max_penetration_m", "pelvis_traj_max_m",
+            "bodies_traj_rms_m"} <= ragdoll["errors"].keys()
+    md = (tmp_path / "accuracy.md").read_text()
+    assert "## pendulum" in md and "**default**" in md
+    assert (tmp_path / "accuracy.png").stat().st_size > 0
+
+
+def test_mujoco_reference_rows(tmp_path):
+    pytest.importorskip("mujoco")
+    path = tmp_path / "accuracy.json"
+    main(["--quick", "--scenarios", "pendulum", "--settings", "default", "--duration-scale", "0.2",
+          "--no-plot", "--json", str(path), "--out-dir", str(tmp_path)])
+    rows = json.loads(path.read_text())
+    mj = [r for r in rows if r["settings"].get("engine") == "mujoco"]
+    assert {r["settings"]["timestep"] for r in mj} == {0.002, 0.0005}
+    assert all(r["errors"]["period_rel_error"] < 0.01 for r in mj)
