@@ -1,0 +1,207 @@
+"""Hard cases stay numerically stable (the scenes of benchmarks/scenes.py).
+
+Every case asserts, over its run:
+
+* no NaN/inf (the engine raises SimulationError; run_case records it);
+* energy never rises above its start plus the motors' work by more than the
+  case's stated tolerance (``Case.energy_tol``: 1 % of the start's |E| in the
+  scene's own frame, at least 0.5 J, unless the case states otherwise);
+* joint anchor error below ``Case.anchor_bound`` (1 cm; 5 cm for the 100 m/s
+  impact) and penetration below ``Case.penetration_bound`` (2 cm for boxes,
+  5 cm for ragdolls, 2 mm for the 1 cm bodies, 10 cm for the 10 m ones) from
+  ``Case.penetration_after`` on;
+* scenes that should come to rest do: every body's speed below
+  ``Case.rest_speed`` from ``Case.rest_time`` on (when the run reaches it);
+* overlap and coincident-centre scenes never fling a body (``speed_bound``).
+
+The fast part runs shortened durations (and, where a full scene costs more
+than about 5 s, a smaller scene of the same kind: stack of 8, pyramid of 4
+rows, pile of 3 ragdolls, 8 overlapping boxes); the full scenes and durations
+are marked slow. Bounds are the same in both; where the engine misses one the
+test stays with the bound and is marked xfail(strict=True) with the measured
+figure.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from benchmarks import scenes as sc
+
+pytestmark = pytest.mark.stability
+
+
+def check(case, result):
+    """The list of bounds the run missed, each with the measured figure."""
+    misses = []
+    if result.nan:
+        misses.append(f"NaN/inf: {result.error}")
+        return misses
+    if result.energy_rise > case.energy_tol:
+        misses.append(f"energy rose {result.energy_rise:.4g} J above start + motor work "
+                      f"(tolerance {case.energy_tol:.4g} J)")
+    if case.anchor_bound is not None and result.max_anchor_error > case.anchor_bound:
+        misses.append(f"anchor error {result.max_anchor_error:.4g} m > {case.anchor_bound:g} m")
+    if case.penetration_bound is not None and result.max_penetration_after > case.penetration_bound:
+        misses.append(f"penetration {result.max_penetration_after:.4g} m > {case.penetration_bound:g} m")
+    if case.speed_bound is not None and result.max_speed_all > case.speed_bound:
+        misses.append(f"speed {result.max_speed_all:.4g} m/s > {case.speed_bound:g} m/s")
+    if case.rest_time is not None and result.sim_time >= case.rest_time and not math.isnan(result.rest_speed_max):
+        if result.rest_speed_max > case.rest_speed:
+            misses.append(f"not at rest: speed {result.rest_speed_max:.4g} m/s after {case.rest_time:g} s "
+                          f"(bound {case.rest_speed:g} m/s)")
+    return misses
+
+
+def run_and_check(case, seconds=None, quick=True):
+    steps = None if seconds is None else int(round(seconds / case.dt))
+    result = sc.run_case(case, steps=steps, quick=quick)
+    misses = check(case, result)
+    assert not misses, f"{case.name}: " + "; ".join(misses)
+    return result
+
+
+def xfail(reason):
+    return pytest.mark.xfail(strict=True, reason=reason)
+
+
+FAR = sc.FAR_OFFSET
+
+# name -> (case factory, simulated seconds) of the fast part
+FAST = {
+    "mass_ratio_stack": (lambda: sc.mass_ratio_stack(), 2.0),
+    "mass_ratio_sandwich": (lambda: sc.mass_ratio_sandwich(), 2.0),
+    "ball_and_chain": (lambda: sc.ball_and_chain(), 3.0),
+    "stack_5": (lambda: sc.box_stack(n=5), 2.5),
+    "pyramid_3": (lambda: sc.pyramid(rows=3), 2.0),
+    "overlap_recovery_8": (lambda: sc.overlap_recovery(n=8), 3.0),
+    "ragdoll_pile_2": (lambda: sc.ragdoll_pile(count=2), 1.0),
+    "sphere_grid": (lambda: sc.sphere_grid(), 1.0),
+    "ragdoll_impact_100": (lambda: sc.ragdoll_impact(), 0.5),
+    "large_dt_ragdoll": (lambda: sc.large_dt_ragdoll(), 2.0),
+    "large_dt_stack": (lambda: sc.large_dt_stack(n=6), 3.0),
+    "tiny_bodies": (lambda: sc.tiny_bodies(), 1.6),
+    "huge_bodies": (lambda: sc.huge_bodies(), 4.0),
+    "stiff_spring": (lambda: sc.stiff_spring(), 2.0),
+    "degenerate_capsules": (lambda: sc.degenerate_capsules(), 2.5),
+    "degenerate_edges": (lambda: sc.degenerate_edges(), 2.5),
+    "degenerate_coincident": (lambda: sc.degenerate_coincident(), 3.0),
+    "mass_ratio_stack_far": (lambda: sc.mass_ratio_stack(FAR), 2.0),
+    "mass_ratio_sandwich_far": (lambda: sc.mass_ratio_sandwich(FAR), 2.0),
+    "ball_and_chain_far": (lambda: sc.ball_and_chain(FAR), 2.0),
+    "overlap_recovery_8_far": (lambda: sc.overlap_recovery(FAR, n=8), 3.0),
+    "ragdoll_impact_100_far": (lambda: sc.ragdoll_impact(FAR), 0.5),
+    "degenerate_capsules_far": (lambda: sc.degenerate_capsules(FAR), 2.5),
+    "degenerate_edges_far": (lambda: sc.degenerate_edges(FAR), 2.5),
+    "degenerate_coincident_far": (lambda: sc.degenerate_coincident(FAR), 3.0),
+}
+
+#: measured misses of the fast part (python -m pytest tests/stability, this checkout)
+FAST_XFAIL = {
+    "mass_ratio_sandwich": "measured: penetration 3.3 cm > 2 cm; still moving at 0.36 m/s after 1 s",
+    "ball_and_chain": "measured: anchor error 1.7 cm > 1 cm within 3 s",
+    "stack_5": "measured: not at rest, speed 0.077 m/s > 0.05 m/s between 2 and 2.5 s",
+    "overlap_recovery_8": "measured: a box flung at 4.8 m/s > 2 m/s",
+    "sphere_grid": "measured: anchor error 3.4 cm > 1 cm within 1 s",
+    "ragdoll_impact_100": "measured: joints torn apart, anchor error 0.85 m > 5 cm",
+    "large_dt_ragdoll": "measured: anchor error 5.5 cm > 1 cm",
+    "large_dt_stack": "measured: not at rest, speed 0.059 m/s > 0.05 m/s between 2 and 3 s",
+}
+for _n in ("mass_ratio_sandwich", "overlap_recovery_8", "ragdoll_impact_100"):
+    FAST_XFAIL[_n + "_far"] = FAST_XFAIL[_n]
+
+#: measured misses of the full scenes: from ``python -m benchmarks.stability --quick``; every
+#: bound is a maximum over the run (the rest bound over [rest_time, end]), so a miss within
+#: the quick duration is a miss of the full duration too.
+SLOW_XFAIL = {
+    "mass_ratio_sandwich": "measured (quick run): penetration 3.3 cm > 2 cm; not at rest: 0.36 m/s > 0.05 m/s after 1 s",
+    "ball_and_chain": "measured (quick run): anchor error 1.7 cm > 1 cm",
+    "stack_20": "measured (quick run): not at rest: 0.14 m/s > 0.05 m/s after 2 s",
+    "overlap_recovery": "measured (quick run): energy rise 208 J > 98.1 J; a body at 7.9 m/s > 2 m/s; "
+                        "not at rest: 1.2 m/s > 0.1 m/s after 2.5 s",
+    "ragdoll_pile_10": "measured (quick run): anchor error 2.0 cm > 1 cm",
+    "sphere_grid": "measured (quick run): anchor error 3.8 cm > 1 cm",
+    "ragdoll_impact_100": "measured (quick run): joints torn apart, anchor error 85 cm > 5 cm",
+    "large_dt_ragdoll": "measured (quick run): anchor error 5.5 cm > 1 cm",
+    "large_dt_stack": "measured (quick run): not at rest: 0.069 m/s > 0.05 m/s after 2 s",
+}
+for _n in ("mass_ratio_sandwich", "stack_20", "overlap_recovery", "sphere_grid", "ragdoll_impact_100"):
+    SLOW_XFAIL[_n + "_far"] = SLOW_XFAIL[_n]
+SLOW_XFAIL["ragdoll_pile_10_far"] = "measured (quick run): anchor error 2.5 cm > 1 cm"
+
+
+def _params(table, xfails):
+    out = []
+    for name, (factory, seconds) in table.items():
+        m = []
+        if name in xfails:
+            m.append(xfail(xfails[name]))
+        out.append(pytest.param(factory, seconds, id=name, marks=m))
+    return out
+
+
+@pytest.mark.parametrize("factory, seconds", _params(FAST, FAST_XFAIL))
+def test_hard_case_fast(factory, seconds):
+    run_and_check(factory(), seconds)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", [pytest.param(n, id=n, marks=[xfail(SLOW_XFAIL[n])] if n in SLOW_XFAIL else [])
+                                  for n in sc.case_names() if not n.startswith("ragdoll_max_torque")])
+def test_hard_case_full(name):
+    """The full scenes for their full durations (as ``python -m benchmarks.stability``)."""
+    run_and_check(sc.make_case(name), quick=False)
+
+
+# ------------------------------------------------------------------ random maximum torques
+@pytest.mark.xfail(strict=True, reason="measured: anchor error 6.6 cm > 1 cm within 90 steps")
+def test_max_torque_fast():
+    """2 worlds of the standing ragdoll, every joint at ± its maximum torque, 90 steps."""
+    case = sc.ragdoll_max_torque(num_worlds=2)
+    run_and_check(case, 90 * case.dt)
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="measured (benchmarks.stability --quick): anchor error 12 cm > 1 cm, "
+                                       "penetration 11 cm > 5 cm within 2,000 steps")
+def test_max_torque_quick_length():
+    """The benchmark's quick length: 2,000 steps."""
+    case = sc.ragdoll_max_torque()
+    run_and_check(case, 2_000 * case.dt)
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="measured: anchor error 12 cm > 1 cm within the first 2,000 steps")
+def test_max_torque_100k_steps():
+    """The long run: 100,000 steps of random maximum torques."""
+    case = sc.ragdoll_max_torque()
+    run_and_check(case, 100_000 * case.dt)
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="measured 10 km out: anchor error 7.4 cm > 1 cm, penetration 7.5 cm > 5 cm "
+                                       "in 2,000 steps")
+def test_max_torque_far():
+    case = sc.ragdoll_max_torque(FAR)
+    run_and_check(case, 2_000 * case.dt)
+
+
+# ------------------------------------------------------------------ determinism
+def _replay(steps, seed, num_worlds=2):
+    case = sc.ragdoll_max_torque(num_worlds=num_worlds, seed=seed)
+    state = case.state.copy()
+    for k in range(steps):
+        sc.e.step(case.model, state, case.controller(k, state))
+    return state
+
+
+def test_replay_is_bit_identical():
+    """The same seed and actions give a bit-identical state (and another seed does not)."""
+    a = _replay(16, seed=7)
+    b = _replay(16, seed=7)
+    assert a.equal(b)
+    c = _replay(16, seed=8)
+    assert not np.array_equal(a.position, c.position)
