@@ -66,8 +66,9 @@ class Control:
             arr = np.asarray(value)
             if arr.shape != shape:
                 raise ValueError(f"control.{name} must have shape {shape}, got {arr.shape}")
-            if not np.issubdtype(arr.dtype, np.number):
-                raise ValueError(f"control.{name} must be numeric, got dtype {arr.dtype}")
+            if not (np.issubdtype(arr.dtype, np.integer) or np.issubdtype(arr.dtype, np.floating)):
+                kind = "complex" if np.issubdtype(arr.dtype, np.complexfloating) else "not numeric"
+                raise ValueError(f"control.{name} must be real numeric values, got {kind} dtype {arr.dtype}")
             if not np.all(np.isfinite(arr)):
                 bad = np.argwhere(~np.isfinite(arr))[0]
                 raise ValueError(f"control.{name} has a NaN or infinite entry at index {tuple(int(i) for i in bad)}")
@@ -84,17 +85,28 @@ def apply_impulse(model, state, body, impulse, point=None, worlds=None):
 
     i = model.body_index(body)
     W = state.num_worlds
-    J = np.broadcast_to(np.asarray(impulse, dtype=float), (W, 3)).copy()
+    J = _per_world_vector("impulse", impulse, W).copy()
     if not np.all(np.isfinite(J)):
         raise ValueError("impulse has a NaN or infinite entry")
     if worlds is not None:
+        idx = np.asarray(worlds, dtype=np.int64).reshape(-1)
+        if idx.size and (idx.min() < -W or idx.max() >= W):
+            raise IndexError(f"apply_impulse: world index out of range for {W} worlds: {idx.tolist()}")
         mask = np.zeros(W, dtype=bool)
-        mask[np.asarray(worlds)] = True
+        mask[idx] = True
         J[~mask] = 0.0
     x = state.position[:, i]
-    p = x if point is None else np.broadcast_to(np.asarray(point, dtype=float), (W, 3))
+    p = x if point is None else _per_world_vector("impulse point", point, W)
     if not np.all(np.isfinite(p)):
         raise ValueError("impulse point has a NaN or infinite entry")
     state.velocity[:, i] += J * model.inv_mass[i]
     q = state.orientation[:, i]
     state.angular_velocity[:, i] += quat_rotate(q, model.inv_inertia[i] * quat_rotate_inv(q, cross(p - x, J)))
+
+
+def _per_world_vector(name, value, num_worlds):
+    """A (W, 3) float array from a 3-vector or a (W, 3) array, or a ValueError naming ``name``."""
+    arr = np.asarray(value, dtype=float)
+    if arr.shape not in ((3,), (num_worlds, 3)):
+        raise ValueError(f"{name} must have shape (3,) or ({num_worlds}, 3), got {arr.shape}")
+    return np.broadcast_to(arr, (num_worlds, 3))

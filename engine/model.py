@@ -131,8 +131,9 @@ class Model:
     # ------------------------------------------------------------------- state
     def initial_state(self, num_worlds: int = 1) -> State:
         """W copies of the scene's initial pose, as a batched State."""
-        if int(num_worlds) != num_worlds or num_worlds < 1:
-            raise ValueError(f"num_worlds must be an integer >= 1, got {num_worlds!r}")
+        if not isinstance(num_worlds, (int, np.integer)) or num_worlds < 1:
+            if not (isinstance(num_worlds, float) and num_worlds.is_integer() and num_worlds >= 1):
+                raise ValueError(f"num_worlds must be an integer >= 1, got {num_worlds!r}")
         W = int(num_worlds)
         arrays = {k: np.repeat(v[None], W, axis=0) for k, v in self._initial.items()}
         arrays["step"] = np.zeros(W, dtype=np.int64)

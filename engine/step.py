@@ -33,6 +33,13 @@ def _check_control(model, state, control):
     return control
 
 
+def _check_state(model, state):
+    shape = state.position.shape
+    if shape[1:] != (model.num_bodies, 3):
+        raise ValueError(f"state has {shape[1]} bodies per world but the model has {model.num_bodies}: "
+                         f"a state of another model?")
+
+
 def step(model, state, control: Control | None = None):
     """Advance every world of ``state`` by ``model.settings.dt`` seconds, in place.
 
@@ -42,6 +49,7 @@ def step(model, state, control: Control | None = None):
     Raises SimulationError naming world, body and step when a world's state
     turns non-finite and ``settings.check_finite`` is set.
     """
+    _check_state(model, state)
     control = _check_control(model, state, control)
     s = model.settings
     h = s.dt / s.substeps

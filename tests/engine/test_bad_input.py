@@ -89,8 +89,6 @@ def test_control_of_string_dtype(scene):
     unchanged(before, state)
 
 
-@pytest.mark.xfail(strict=True, reason="measured: a complex control.motor passes validation and is stepped "
-                                       "without any error")
 def test_control_of_complex_dtype(scene):
     model, state = scene
     before = state.copy()
@@ -107,8 +105,6 @@ def test_control_not_a_control(scene):
     unchanged(before, state)
 
 
-@pytest.mark.xfail(strict=True, reason="measured: stepping a model with a state of another model (3 bodies "
-                                       "vs 1) raises nothing and changes the state")
 def test_state_of_another_model(scene):
     model, state = scene
     b = SceneBuilder()
@@ -145,8 +141,6 @@ def test_apply_impulse_unknown_body(scene):
     unchanged(before, state)
 
 
-@pytest.mark.xfail(strict=True, reason="measured: numpy's broadcast error 'operands could not be broadcast "
-                                       "... (4,) and requested shape (3,3)' does not name the impulse")
 def test_apply_impulse_wrong_shape(scene):
     model, state = scene
     before = state.copy()
@@ -155,8 +149,6 @@ def test_apply_impulse_wrong_shape(scene):
     unchanged(before, state)
 
 
-@pytest.mark.xfail(strict=True, reason="measured: IndexError 'index 5 is out of bounds for axis 0 with size 3' "
-                                       "does not say that the worlds argument is wrong")
 def test_apply_impulse_world_out_of_range(scene):
     model, state = scene
     before = state.copy()
@@ -173,8 +165,6 @@ def test_bad_num_worlds(scene, W):
         model.initial_state(W)
 
 
-@pytest.mark.xfail(strict=True, reason="measured: initial_state('ten') raises \"invalid literal for int() "
-                                       "with base 10: 'ten'\", which does not name num_worlds")
 def test_num_worlds_not_a_number(scene):
     model, _ = scene
     with raises(ValueError, "num_worlds"):
