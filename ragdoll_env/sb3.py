@@ -67,7 +67,7 @@ def _sb3_class():
         """W worlds of a task as an SB3 VecEnv (see the module docstring)."""
 
         def __init__(self, task, num_envs: int = 8, max_episode_steps=_DEFAULT, render_mode=None,
-                     width: int = 480, height: int = 480, **kwargs):
+                     width: int = 640, height: int = 480, **kwargs):
             tcls = task_class(task)
             self.render_mode, self.width, self.height = opt.render_options(render_mode, width, height)
             if self.render_mode == "human":

@@ -38,7 +38,7 @@ class RagdollEnv(gym.Env):
     metadata = {"render_modes": ["rgb_array", "human"], "render_fps": 25}
     task_class = None
 
-    def __init__(self, render_mode=None, width: int = 480, height: int = 480, task=None, **kwargs):
+    def __init__(self, render_mode=None, width: int = 640, height: int = 480, task=None, **kwargs):
         tcls = task_class(task if task is not None else self.task_class)
         self.render_mode, self.width, self.height = opt.render_options(render_mode, width, height)
         self.core, _ = BatchedSim.from_kwargs(tcls, 1, kwargs)

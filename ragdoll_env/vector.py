@@ -42,7 +42,7 @@ class RagdollVectorEnv(VectorEnv):
                 "autoreset_mode": AutoresetMode.NEXT_STEP}
     task_class = None
 
-    def __init__(self, num_envs: int = 1, render_mode=None, width: int = 480, height: int = 480,
+    def __init__(self, num_envs: int = 1, render_mode=None, width: int = 640, height: int = 480,
                  max_episode_steps=_DEFAULT, autoreset_mode=AutoresetMode.NEXT_STEP, task=None, **kwargs):
         tcls = task_class(task if task is not None else self.task_class)
         self.render_mode, self.width, self.height = opt.render_options(render_mode, width, height)
