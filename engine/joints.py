@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .coloring import color_pairs
-from .math3d import (cross, dot, mat_vec, quat_conj, quat_mul, quat_rotate, skew, sym3_solve,
+from .math3d import (sym3_inverse, cross, dot, mat_vec, quat_conj, quat_mul, quat_rotate, skew, sym3_solve,
                      world_inv_inertia)
 from .soft import implicit_spring_impulse, make_soft
 from .state import Event
@@ -729,24 +729,6 @@ class _JointTree:
         self.body_pos = body_node
 
 
-def _inv3_sym(k):
-    """Inverse of symmetric (..., 3, 3) matrices by the adjugate."""
-    a00, a01, a02 = k[..., 0, 0], k[..., 0, 1], k[..., 0, 2]
-    a11, a12, a22 = k[..., 1, 1], k[..., 1, 2], k[..., 2, 2]
-    c00 = a11 * a22 - a12 * a12
-    c01 = a02 * a12 - a01 * a22
-    c02 = a01 * a12 - a02 * a11
-    c11 = a00 * a22 - a02 * a02
-    c12 = a01 * a02 - a00 * a12
-    c22 = a00 * a11 - a01 * a01
-    inv_det = 1.0 / (a00 * c00 + a01 * c01 + a02 * c02)
-    out = np.empty(k.shape)
-    out[..., 0, 0], out[..., 0, 1], out[..., 0, 2] = c00 * inv_det, c01 * inv_det, c02 * inv_det
-    out[..., 1, 0], out[..., 1, 1], out[..., 1, 2] = c01 * inv_det, c11 * inv_det, c12 * inv_det
-    out[..., 2, 0], out[..., 2, 1], out[..., 2, 2] = c02 * inv_det, c12 * inv_det, c22 * inv_det
-    return out
-
-
 class _TreeSolver:
     """Per-substep factorisation and solve of the joint tree (see ``_JointTree``)."""
 
@@ -810,7 +792,7 @@ class _TreeSolver:
             scale = np.where(trG > cap, cap / np.where(trG > cap, trG, 1.0), 1.0)
             I = I + G * scale[..., None, None]
             inv = js._iinv.copy()
-            inv[:, b] = _inv3_sym(I)
+            inv[:, b] = sym3_inverse(I)
             # Every joint row (warm start, limits, tree) uses the same metric.
             js._iinv = self.iinv = inv
         M[..., 3:, 3:] = I

@@ -173,8 +173,8 @@ def mat_vec(m: np.ndarray, v: np.ndarray) -> np.ndarray:
     )
 
 
-def sym3_solve(k: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Solve K x = b for symmetric positive definite (..., 3, 3) K by the adjugate."""
+def sym3_inverse(k: np.ndarray) -> np.ndarray:
+    """Inverse of symmetric (..., 3, 3) matrices by the adjugate (singular: 0)."""
     a00, a01, a02 = k[..., 0, 0], k[..., 0, 1], k[..., 0, 2]
     a11, a12, a22 = k[..., 1, 1], k[..., 1, 2], k[..., 2, 2]
     c00 = a11 * a22 - a12 * a12
@@ -185,15 +185,16 @@ def sym3_solve(k: np.ndarray, b: np.ndarray) -> np.ndarray:
     c22 = a00 * a11 - a01 * a01
     det = a00 * c00 + a01 * c01 + a02 * c02
     inv_det = np.where(det != 0.0, 1.0 / np.where(det != 0.0, det, 1.0), 0.0)
-    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
-    return np.stack(
-        (
-            (c00 * b0 + c01 * b1 + c02 * b2) * inv_det,
-            (c01 * b0 + c11 * b1 + c12 * b2) * inv_det,
-            (c02 * b0 + c12 * b1 + c22 * b2) * inv_det,
-        ),
-        axis=-1,
-    )
+    out = np.empty(k.shape)
+    out[..., 0, 0], out[..., 0, 1], out[..., 0, 2] = c00 * inv_det, c01 * inv_det, c02 * inv_det
+    out[..., 1, 0], out[..., 1, 1], out[..., 1, 2] = c01 * inv_det, c11 * inv_det, c12 * inv_det
+    out[..., 2, 0], out[..., 2, 1], out[..., 2, 2] = c02 * inv_det, c12 * inv_det, c22 * inv_det
+    return out
+
+
+def sym3_solve(k: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Solve K x = b for symmetric positive definite (..., 3, 3) K by the adjugate."""
+    return mat_vec(sym3_inverse(k), b)
 
 
 def world_inv_inertia(q: np.ndarray, inv_inertia_body: np.ndarray) -> np.ndarray:

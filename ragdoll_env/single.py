@@ -18,13 +18,14 @@ from gymnasium import spaces
 
 from . import options as opt
 from .batched import BatchedSim, check_action, world_info
+from .core_access import CoreAccess
 from .tasks import BalanceTask, InvertedDoublePendulumTask, InvertedPendulumTask, task_class
 from .tasks import balance as _balance
 from .tasks import inverted_double_pendulum as _idp
 from .tasks import inverted_pendulum as _ip
 
 
-class RagdollEnv(gym.Env):
+class RagdollEnv(CoreAccess, gym.Env):
     """One world of a task as a ``gymnasium.Env``.
 
     task: a Task subclass or a registered id (subclasses fix it).
@@ -53,40 +54,9 @@ class RagdollEnv(gym.Env):
 
             self._viewer = HumanViewer(title=task_.env_id, fps=self.metadata["render_fps"])
 
-    # ------------------------------------------------------------ shortcuts
-    @property
-    def task(self):
-        return self.core.task
-
-    @property
-    def model(self):
-        return self.core.model
-
-    @property
-    def state(self):
-        return self.core.state
-
-    @property
-    def dt(self) -> float:
-        """Seconds per step (engine dt x frame_skip)."""
-        return self.core.dt
-
-    @property
-    def obs_layout(self) -> dict:
-        """Observation component name -> slice."""
-        return self.core.task.obs_layout
-
-    @property
-    def actuator_names(self) -> tuple:
-        return self.core.actuator_names
-
-    @property
-    def max_return(self) -> float:
-        """Upper bound of an episode's return: the largest reward per step
-        times the episode length (the spec's max_episode_steps, else the
-        task's registered one)."""
-        steps = getattr(self.spec, "max_episode_steps", None) or self.core.task.max_episode_steps
-        return self.core.task.max_reward_per_step * steps
+    def _episode_steps(self):
+        # The spec's max_episode_steps, else the task's registered one.
+        return getattr(self.spec, "max_episode_steps", None) or self.core.task.max_episode_steps
 
     # ------------------------------------------------------------ API
     def reset(self, *, seed=None, options=None):

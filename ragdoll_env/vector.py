@@ -25,10 +25,11 @@ from gymnasium.vector.utils import batch_space
 
 from . import options as opt
 from .batched import _DEFAULT, BatchedSim, check_action
+from .core_access import CoreAccess
 from .tasks import BalanceTask, InvertedDoublePendulumTask, InvertedPendulumTask, task_class
 
 
-class RagdollVectorEnv(VectorEnv):
+class RagdollVectorEnv(CoreAccess, VectorEnv):
     """W worlds of a task as a Gymnasium VectorEnv.
 
     num_envs: W. max_episode_steps: truncation length (default: the task's
@@ -71,35 +72,6 @@ class RagdollVectorEnv(VectorEnv):
 
             self._viewer = HumanViewer(title=task_.env_id, fps=self.metadata["render_fps"])
 
-    # ------------------------------------------------------------ shortcuts
-    @property
-    def task(self):
-        return self.core.task
-
-    @property
-    def model(self):
-        return self.core.model
-
-    @property
-    def state(self):
-        return self.core.state
-
-    @property
-    def dt(self) -> float:
-        return self.core.dt
-
-    @property
-    def obs_layout(self) -> dict:
-        return self.core.task.obs_layout
-
-    @property
-    def actuator_names(self) -> tuple:
-        return self.core.actuator_names
-
-    @property
-    def max_return(self) -> float:
-        steps = self.core.max_episode_steps or self.core.task.max_episode_steps
-        return self.core.task.max_reward_per_step * steps
 
     # ------------------------------------------------------------ API
     def _seeds(self, seed):
