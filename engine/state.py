@@ -95,7 +95,7 @@ class State:
         bad = np.zeros(self.num_worlds, dtype=bool)
         for k in ("position", "orientation", "velocity", "angular_velocity"):
             a = self.arrays[k]
-            bad |= ~np.isfinite(a.reshape(a.shape[0], -1).sum(axis=1))
+            bad |= ~np.isfinite(a).reshape(a.shape[0], -1).all(axis=1)
         return np.flatnonzero(bad)
 
     @staticmethod

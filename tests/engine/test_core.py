@@ -598,3 +598,16 @@ def test_nonfinite_flagged_without_check_and_isolated_to_its_world():
     assert not np.isfinite(s.position[2, 1]).all() and np.isfinite(s.position[2, 0]).all()
     s.position[1, 0, 2] = np.inf
     assert s.nonfinite_worlds().tolist() == [1, 2]
+
+
+def test_huge_but_finite_state_is_not_reported_as_nonfinite():
+    # Summing a world's entries would overflow to inf; the check must not.
+    b = SceneBuilder(gravity=None)
+    b.add_body("a", Sphere(0.1), mass=1.0)
+    b.add_body("b", Sphere(0.1), mass=1.0, position=(1, 0, 0))
+    model = b.build()
+    state = model.initial_state(3)
+    state.position[1, :, 0] = 1e308
+    assert state.nonfinite_worlds().tolist() == []
+    state.velocity[2, 0, 1] = np.nan
+    assert state.nonfinite_worlds().tolist() == [2]
