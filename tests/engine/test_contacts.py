@@ -225,8 +225,6 @@ def test_capsule_at_100_m_per_s_does_not_pass_through(target):
     assert lowest > floor
 
 
-@pytest.mark.xfail(strict=True, reason="measured: the collapsing doll's forearms still swing at 7 cm/s "
-                                        "after 3 s (every bone under 1 cm/s by 5 s); 0.5 mm penetration")
 def test_humanoid_dropped_from_1_m_settles_without_sinking_or_jitter():
     from engine.humanoid import add_humanoid
 

@@ -9,6 +9,7 @@ import pytest
 from engine import Box, Capsule, SceneBuilder, SceneError, Sphere, math3d
 from engine.humanoid import (
     Actuator,
+    DAMPING_PER_TORQUE,
     _q_swing,
     _q_twist,
     JOINT_TABLE,
@@ -372,7 +373,7 @@ def test_damping_scale():
     b, h = make(damping=0.0)
     assert all(b.joints[j].damping == 0.0 for j in h.joints.values())
     b, h = make(damping=2.0)
-    assert b.joints[h.joints["knee_l"]].damping == pytest.approx(2 * 0.01 * 200)
+    assert b.joints[h.joints["knee_l"]].damping == pytest.approx(2 * DAMPING_PER_TORQUE * 200)
 
 
 def test_default_humanoid_is_well_conditioned():
