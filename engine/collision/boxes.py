@@ -32,6 +32,10 @@ FACE_ABS = 5e-4
 #: EDGE_REL * |face separation| + EDGE_ABS (m).
 EDGE_REL = 0.05
 EDGE_ABS = 5e-4
+#: An edge-edge axis within this cosine of the chosen face normal is treated
+#: as that face: a box lying almost flat across another's edge then gets the
+#: clipped face manifold (2-4 points) instead of one point it can rock about.
+EDGE_FACE_COS = 0.95
 #: Edge pairs closer to parallel than this (sine of the angle) have no axis of their own.
 PARALLEL_SIN = 1e-5
 #: Points within this depth (m) of the deepest count as deepest when reducing,
@@ -158,6 +162,7 @@ def box_box(pos_a, quat_a, params_a, pos_b, quat_b, params_b, margin: float) -> 
 
     face = _face_contact(pos_a, ma, ha, pos_b, mb, hb, use_b, np.where(use_b, ib, ia), margin)
     edge = _edge_contact(pos_a, ma, ha, pos_b, mb, hb, t, ie, se, margin)
+    use_edge = use_edge & (np.abs(dot(edge.normal, face.normal)) < EDGE_FACE_COS)
     out = select(use_edge, edge, face)
     return out._replace(valid=out.valid & ~apart[..., None],
                         separation=np.where(apart[..., None], np.inf, out.separation))
