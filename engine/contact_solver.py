@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .math3d import cross, dot, mat_vec, normalize, quat_rotate, quat_rotate_inv
+from .math3d import cross, dot, mat_vec, normalize, quat_rotate, quat_rotate_inv, world_inv_inertia
 from .soft import make_soft
 
 STICK_SPEED = 0.01  # m/s: below it a contact point uses static friction
@@ -91,8 +91,6 @@ class ContactRows:
         self.lb = quat_rotate_inv(qb[:, None], rb)
         self.sep0 = np.where(valid, sep, 0.0)
         # World inverse inertias (step start), as in Box2D's prepare stage.
-        from .math3d import world_inv_inertia
-
         self.ia = world_inv_inertia(qa, model.inv_inertia[a])[:, None]
         self.ib = world_inv_inertia(qb, model.inv_inertia[b])[:, None]
         base = (self.inv_ma + self.inv_mb)[:, None]
@@ -168,12 +166,10 @@ class ContactRows:
 
     def _separation(self, state, rows):
         """Current separation (R, 4) from the bodies' displacement this step."""
-        w = self.w[rows]
         pa = state.position.reshape(-1, 3)[self.ka[rows]]
         pb = state.position.reshape(-1, 3)[self.kb[rows]]
         qa = state.orientation.reshape(-1, 4)[self.ka[rows]]
         qb = state.orientation.reshape(-1, 4)[self.kb[rows]]
-        del w
         ra = quat_rotate(qa[:, None], self.la[rows])
         rb = quat_rotate(qb[:, None], self.lb[rows])
         d = (pb - self.xb0[rows])[:, None] + rb - self.rb[rows] - (pa - self.xa0[rows])[:, None] - ra + self.ra[rows]

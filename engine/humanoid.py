@@ -49,6 +49,7 @@ import numpy as np
 
 from . import math3d
 from .errors import SceneError
+from .joints import Actuator
 from .shapes import Box, Capsule
 
 # --------------------------------------------------------------------------
@@ -185,25 +186,6 @@ _UP = np.column_stack(([0, 0, 1], [0, 1, 0], [-1, 0, 0]))  # spine, neck: x up, 
 _DOWN = np.column_stack(([0, 0, -1], [0, -1, 0], [-1, 0, 0]))  # limbs: x down the bone, y right
 _KNEE = np.column_stack(([0, 1, 0], [0, 0, 1], [1, 0, 0]))  # hinge axis +y: shin swings back
 _ELBOW = np.column_stack(([0, -1, 0], [0, 0, -1], [1, 0, 0]))  # hinge axis -y: forearm swings forward
-
-
-try:  # the engine's own type, once the joint solver defines it
-    from .joints import Actuator
-except ImportError:  # pragma: no cover - joint solver not written yet
-
-    @dataclass(frozen=True)
-    class Actuator:
-        """One actuated joint axis.
-
-        name: the joint's name for a hinge, "<joint>:twist", ":swing_y" or
-        ":swing_z" for a ball joint; joint: index into ``builder.joints``;
-        axis: 0 twist or hinge angle, 1 swing_y, 2 swing_z; max_torque: N·m.
-        """
-
-        name: str
-        joint: int
-        axis: int
-        max_torque: float
 
 
 @dataclass

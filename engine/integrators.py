@@ -68,6 +68,7 @@ def rotate_free(model, q, omega, h):
     """
     inertia = model.inertia_safe
     lb = inertia * quat_rotate_inv(q, omega)
+    dq = np.zeros(q.shape)  # one buffer for the five partial rotations
     for axis, frac in _SPLIT:
         j, k = (axis + 1) % 3, (axis + 2) % 3
         theta = (frac * h) * lb[..., axis] / inertia[:, axis]
@@ -75,7 +76,7 @@ def rotate_free(model, q, omega, h):
         lj, lk = lb[..., j].copy(), lb[..., k]
         lb[..., j] = c * lj + s * lk
         lb[..., k] = c * lk - s * lj
-        dq = np.zeros(q.shape)
+        dq[..., 1:] = 0.0
         dq[..., 0] = np.cos(0.5 * theta)
         dq[..., 1 + axis] = np.sin(0.5 * theta)
         q = quat_mul(q, dq)

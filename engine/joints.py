@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .coloring import color_pairs
-from .math3d import (sym3_inverse, cross, dot, mat_vec, quat_conj, quat_mul, quat_rotate, skew, sym3_solve,
+from .math3d import (sym3_inverse, cross, quat_rotate_inv, dot, mat_vec, quat_conj, quat_mul, quat_rotate, skew, sym3_solve,
                      world_inv_inertia)
 from .soft import implicit_spring_impulse, make_soft
 from .state import Event
@@ -197,8 +197,6 @@ class JointSet:
         """Child minus parent angular velocity in the parent joint frame (W, J, 3), rad/s."""
         idx = np.arange(len(self.names)) if idx is None else idx
         a, b, fpw, _, _, _ = self.frames(state, idx)
-        from .math3d import quat_rotate_inv
-
         return quat_rotate_inv(fpw, state.angular_velocity[:, b] - state.angular_velocity[:, a])
 
     def anchor_error(self, state):
@@ -239,10 +237,6 @@ class JointSet:
             t = t * (~view.joint_broken[:, j])[..., None]
         np.add.at(acc.torque, (slice(None), self.child[j]), t)
         np.add.at(acc.torque, (slice(None), self.parent[j]), -t)
-
-    def passive_torques(self, model, view, acc):
-        """Passive stiffness and damping are implicit (see ``passive``)."""
-        return None
 
     def passive(self, model, state, h):
         """Muscle tone: an implicit spring-damper on each joint axis towards the

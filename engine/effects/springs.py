@@ -27,7 +27,7 @@ import math
 import numpy as np
 
 from ..coloring import color_pairs
-from ..math3d import cross, dot, quat_rotate
+from ..math3d import cross, dot, quat_rotate, quat_rotate_inv
 from ..soft import implicit_spring_impulse
 from ..state import Event
 
@@ -36,8 +36,6 @@ STIFF_OMEGA_H = 1.0
 
 def _inv_inertia_world_apply(q, inv_inertia_body, v):
     """I_w⁻¹ v = R (I_b⁻¹ ⊙ (Rᵀ v)) for (W, K, 4) q, (K, 3) inv inertia."""
-    from ..math3d import quat_rotate_inv
-
     return quat_rotate(q, inv_inertia_body * quat_rotate_inv(q, v))
 
 
