@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .coloring import color_pairs
-from .math3d import (sym3_inverse, cross, quat_rotate_inv, dot, mat_vec, quat_conj, quat_mul, quat_rotate, skew, sym3_solve,
+from .math3d import (sym3_inverse, clamp_norm, cross, quat_rotate_inv, dot, mat_vec, quat_conj, quat_mul, quat_rotate, skew, sym3_solve,
                      world_inv_inertia)
 from .soft import implicit_spring_impulse, make_soft
 from .state import Event
@@ -401,7 +401,7 @@ class JointSet:
         rhs = cdot
         if bias_rate:
             sep = xb + rb - xa - ra
-            rhs = cdot + bias_rate * sep
+            rhs = cdot + clamp_norm(bias_rate * sep, self.settings.joint_max_push_out)
         K = _point_mass_matrix(model.inv_mass[a] + model.inv_mass[b], ra, rb, self._iinv[:, a], self._iinv[:, b])
         lam = state.joint_linear_impulse[:, idx]
         P = -mass_scale * sym3_solve(K, rhs) - impulse_scale * lam
@@ -422,9 +422,9 @@ class JointSet:
         if bias_rate:
             ax_p = quat_rotate(fpw, np.broadcast_to(_EX, shape))
             ax_c = quat_rotate(fcw, np.broadcast_to(_EX, shape))
-            err = cross(ax_p, ax_c)
-            c1 = c1 + bias_rate * dot(err, by)
-            c2 = c2 + bias_rate * dot(err, bz)
+            err = clamp_norm(bias_rate * cross(ax_p, ax_c), self.settings.joint_max_angular_push_out)
+            c1 = c1 + dot(err, by)
+            c2 = c2 + dot(err, bz)
         isy, isz = mat_vec(isum, by), mat_vec(isum, bz)
         k11, k12, k22 = dot(by, isy), dot(by, isz), dot(bz, isz)
         det = k11 * k22 - k12 * k12
@@ -450,7 +450,7 @@ class JointSet:
             # Rotation vector of q_c q_p⁻¹ (small-angle: 2·vec·sign(w)).
             qd = quat_mul(fcw, quat_conj(fpw))
             err = 2.0 * qd[..., 1:] * np.where(qd[..., 0:1] < 0, -1.0, 1.0)
-            rhs = rhs + bias_rate * err
+            rhs = rhs + clamp_norm(bias_rate * err, self.settings.joint_max_angular_push_out)
         lam = state.joint_angular_impulse[:, idx]
         L = -mass_scale * sym3_solve(ia + ib, rhs) - impulse_scale * lam
         L = L * self._active(state, idx)[..., None]
@@ -467,7 +467,7 @@ class JointSet:
         cdot = dot(state.angular_velocity[:, b] - state.angular_velocity[:, a], axis)
         bias_rate, mass_scale, impulse_scale = self._soft_terms(use_bias, soft)
         open_ = C > 0.0
-        bias = np.where(open_, C / h, bias_rate * C)
+        bias = np.where(open_, C / h, np.maximum(bias_rate * C, -self.settings.joint_max_angular_push_out))
         ms = np.where(open_, 1.0, mass_scale)
         isc = np.where(open_, 0.0, impulse_scale)
         lam = state.joint_limit_impulse[:, idx, slot]
@@ -831,14 +831,14 @@ class _TreeSolver:
         r[..., 3:] = mat_vec(E, wrel)
         if use_bias and bias_rate:
             xa, xb = state.position[:, a], state.position[:, b]
-            r[..., :3] += bias_rate * (xb + rb - xa - ra)
+            r[..., :3] += clamp_norm(bias_rate * (xb + rb - xa - ra), js.settings.joint_max_push_out)
             ax_p = quat_rotate(fpw, np.broadcast_to(_EX, shape))
             ax_c = quat_rotate(fcw, np.broadcast_to(_EX, shape))
             herr = cross(ax_p, ax_c)
             qd = quat_mul(fcw, quat_conj(fpw))
             ferr = 2.0 * qd[..., 1:] * np.where(qd[..., 0:1] < 0, -1.0, 1.0)
-            aerr = np.where(hinge[..., 0], mat_vec(E, herr), ferr)
-            r[..., 3:] += bias_rate * aerr
+            aerr_vec = np.where(hinge[..., 0], herr, ferr)
+            r[..., 3:] += mat_vec(E, clamp_norm(bias_rate * aerr_vec, js.settings.joint_max_angular_push_out))
         r *= mask
         return a, b, Ja, Jb, mask, r
 
@@ -879,7 +879,7 @@ class _TreeSolver:
         r = mat_vec(rows, wrel)
         # Speculative while open (C/h), rigid position bias when violated in
         # the biased solve, none in the relax solve.
-        bias = np.where(C > 0, C / h, C / h if use_bias else 0.0)
+        bias = np.where(C > 0, C / h, np.maximum(C / h, -js.settings.joint_max_angular_push_out) if use_bias else 0.0)
         r = r + sigma * bias
         r = np.where(exists, r, 0.0)
         return rows, r, sigma, exists, lower

@@ -29,6 +29,12 @@ def norm(a: np.ndarray) -> np.ndarray:
     return np.sqrt(dot(a, a))
 
 
+def clamp_norm(a: np.ndarray, limit: float) -> np.ndarray:
+    """Vectors ``a`` (..., 3) scaled down to length at most ``limit``."""
+    n = norm(a)
+    return a * (np.minimum(n, limit) / np.maximum(n, 1e-300))[..., None]
+
+
 def normalize(a: np.ndarray, eps: float = 1e-12) -> np.ndarray:
     """Unit vectors along ``a``; zero vectors stay zero."""
     n = norm(a)

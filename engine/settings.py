@@ -54,6 +54,11 @@ class Settings:
         ``joint_hertz = inf`` makes joints rigid (full bias C/h).
     limit_hertz: softness of joint limits (Hz); default inf, rigid, so a
         joint driven into its limit by its maximum torque holds the limit.
+    joint_max_push_out, joint_max_angular_push_out: m/s and rad/s, the
+        largest speed a joint's (or violated limit's) position bias may add.
+        Without them a joint pulled far apart, e.g. a ragdoll hitting the
+        ground at 100 m/s with rigid limits, was driven back at C/h, turned
+        its links by radians in one substep and diverged within three steps.
     contact_hertz, contact_damping_ratio: softness of contacts; the contact
         stiffness used is min(contact_hertz, substep rate / 4) as in Box2D v3.
     max_push_out: m/s, the largest speed the position bias may add.
@@ -81,6 +86,8 @@ class Settings:
     limit_hertz: float = math.inf
     contact_hertz: float = 60.0
     contact_damping_ratio: float = 10.0
+    joint_max_push_out: float = 3.0
+    joint_max_angular_push_out: float = 10.0
     max_push_out: float = 3.0
     restitution_threshold: float = 1.0
     linear_slop: float = 0.0
@@ -112,6 +119,7 @@ class Settings:
             if not getattr(self, name) > 0:
                 raise ValueError(f"settings: {name} must be > 0 (inf for rigid), got {getattr(self, name)!r}")
         for name in ("joint_geometric_stiffness_cap", "joint_damping_ratio", "contact_damping_ratio", "max_push_out",
+                     "joint_max_push_out", "joint_max_angular_push_out",
                      "restitution_threshold", "linear_slop", "speculative_distance"):
             v = getattr(self, name)
             if not (v >= 0 and math.isfinite(v)):

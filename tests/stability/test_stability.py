@@ -56,16 +56,21 @@ def check(case, result):
     return misses
 
 
-def run_and_check(case, seconds=None, quick=True):
+def run_and_check(case, seconds=None, quick=True, known_miss=None):
+    """Run ``case`` and assert its bounds. Staying finite is asserted always; a
+    case with a ``known_miss`` (the measured figures it misses by) is an
+    expected failure for its other bounds, and fails when it meets them all, so
+    the table of known misses cannot go stale."""
     steps = None if seconds is None else int(round(seconds / case.dt))
     result = sc.run_case(case, steps=steps, quick=quick)
+    assert not result.nan, f"{case.name}: NaN/inf: {result.error}"
     misses = check(case, result)
+    if known_miss is not None:
+        if not misses:
+            pytest.fail(f"{case.name} now meets every bound: remove it from the known misses ({known_miss})")
+        pytest.xfail(f"{known_miss}; this run: " + "; ".join(misses))
     assert not misses, f"{case.name}: " + "; ".join(misses)
     return result
-
-
-def xfail(reason):
-    return pytest.mark.xfail(strict=True, reason=reason)
 
 
 FAR = sc.FAR_OFFSET
@@ -106,7 +111,7 @@ FAST_XFAIL = {
     "stack_5": "measured: not at rest, speed 0.077 m/s > 0.05 m/s between 2 and 2.5 s",
     "overlap_recovery_8": "measured: a box flung at 4.8 m/s > 2 m/s",
     "sphere_grid": "measured: anchor error 3.4 cm > 1 cm within 1 s",
-    "ragdoll_impact_100": "measured: joints torn apart, anchor error 0.85 m > 5 cm",
+    "ragdoll_impact_100": "measured: joints pulled apart at impact, anchor error 0.75 m > 5 cm",
     "large_dt_ragdoll": "measured: anchor error 5.5 cm > 1 cm",
     "large_dt_stack": "measured: not at rest, speed 0.059 m/s > 0.05 m/s between 2 and 3 s",
 }
@@ -124,7 +129,7 @@ SLOW_XFAIL = {
                         "not at rest: 1.2 m/s > 0.1 m/s after 2.5 s",
     "ragdoll_pile_10": "measured (quick run): anchor error 2.0 cm > 1 cm",
     "sphere_grid": "measured (quick run): anchor error 3.8 cm > 1 cm",
-    "ragdoll_impact_100": "measured (quick run): joints torn apart, anchor error 85 cm > 5 cm",
+    "ragdoll_impact_100": "measured (quick run): joints pulled apart at impact, anchor error 75 cm > 5 cm",
     "large_dt_ragdoll": "measured (quick run): anchor error 5.5 cm > 1 cm",
     "large_dt_stack": "measured (quick run): not at rest: 0.069 m/s > 0.05 m/s after 2 s",
 }
@@ -133,60 +138,47 @@ for _n in ("mass_ratio_sandwich", "stack_20", "overlap_recovery", "sphere_grid",
 SLOW_XFAIL["ragdoll_pile_10_far"] = "measured (quick run): anchor error 2.5 cm > 1 cm"
 
 
-def _params(table, xfails):
-    out = []
-    for name, (factory, seconds) in table.items():
-        m = []
-        if name in xfails:
-            m.append(xfail(xfails[name]))
-        out.append(pytest.param(factory, seconds, id=name, marks=m))
-    return out
-
-
-@pytest.mark.parametrize("factory, seconds", _params(FAST, FAST_XFAIL))
-def test_hard_case_fast(factory, seconds):
-    run_and_check(factory(), seconds)
+@pytest.mark.parametrize("name", list(FAST))
+def test_hard_case_fast(name):
+    factory, seconds = FAST[name]
+    run_and_check(factory(), seconds, known_miss=FAST_XFAIL.get(name))
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name", [pytest.param(n, id=n, marks=[xfail(SLOW_XFAIL[n])] if n in SLOW_XFAIL else [])
-                                  for n in sc.case_names() if not n.startswith("ragdoll_max_torque")])
+@pytest.mark.parametrize("name", [n for n in sc.case_names() if not n.startswith("ragdoll_max_torque")])
 def test_hard_case_full(name):
     """The full scenes for their full durations (as ``python -m benchmarks.stability``)."""
-    run_and_check(sc.make_case(name), quick=False)
+    run_and_check(sc.make_case(name), quick=False, known_miss=SLOW_XFAIL.get(name))
 
 
 # ------------------------------------------------------------------ random maximum torques
-@pytest.mark.xfail(strict=True, reason="measured: anchor error 6.6 cm > 1 cm within 90 steps")
 def test_max_torque_fast():
     """2 worlds of the standing ragdoll, every joint at ± its maximum torque, 90 steps."""
     case = sc.ragdoll_max_torque(num_worlds=2)
-    run_and_check(case, 90 * case.dt)
+    run_and_check(case, 90 * case.dt, known_miss="measured: anchor error 6.6 cm > 1 cm within 90 steps")
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="measured (benchmarks.stability --quick): anchor error 12 cm > 1 cm, "
-                                       "penetration 11 cm > 5 cm within 2,000 steps")
 def test_max_torque_quick_length():
     """The benchmark's quick length: 2,000 steps."""
     case = sc.ragdoll_max_torque()
-    run_and_check(case, 2_000 * case.dt)
+    run_and_check(case, 2_000 * case.dt, known_miss="measured (benchmarks.stability --quick): anchor error "
+                                                     "12 cm > 1 cm, penetration 11 cm > 5 cm within 2,000 steps")
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="measured: anchor error 12 cm > 1 cm within the first 2,000 steps")
 def test_max_torque_100k_steps():
     """The long run: 100,000 steps of random maximum torques."""
     case = sc.ragdoll_max_torque()
-    run_and_check(case, 100_000 * case.dt)
+    run_and_check(case, 100_000 * case.dt, known_miss="measured: anchor error 12 cm > 1 cm within the first "
+                                                       "2,000 steps")
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="measured 10 km out: anchor error 7.4 cm > 1 cm, penetration 7.5 cm > 5 cm "
-                                       "in 2,000 steps")
 def test_max_torque_far():
     case = sc.ragdoll_max_torque(FAR)
-    run_and_check(case, 2_000 * case.dt)
+    run_and_check(case, 2_000 * case.dt, known_miss="measured 10 km out: anchor error 7.4 cm > 1 cm, "
+                                                     "penetration 7.5 cm > 5 cm in 2,000 steps")
 
 
 # ------------------------------------------------------------------ determinism
