@@ -4,7 +4,7 @@ from .control import Control, apply_impulse
 from .errors import SceneError, SimulationError
 from .materials import Material, MaterialTable
 from .model import Model
-from .settings import Settings
+from .settings import ACCURATE, Settings
 from .shapes import Box, Capsule, Plane, Sphere
 from .state import Event, State
 from .step import simulate, step

@@ -36,6 +36,7 @@ KINDS = {"hinge": HINGE, "ball": BALL, "fixed": FIXED}
 _EX = np.array([1.0, 0.0, 0.0])
 _EY = np.array([0.0, 1.0, 0.0])
 _EZ = np.array([0.0, 0.0, 1.0])
+JOINT_HERTZ_CAP = 0.5  # joint stiffness at most this x the substep rate
 AXIS_NAMES = {HINGE: ("",), BALL: (":twist", ":swing_y", ":swing_z")}
 
 
@@ -268,8 +269,16 @@ class JointSet:
         """World inverse inertias for the step (Box2D prepares once per step)."""
         self._iinv = world_inv_inertia(state.orientation, model.inv_inertia)
         s = self.settings
-        self._soft = make_soft(s.joint_hertz, s.joint_damping_ratio, h)
-        self._limit_soft = make_soft(s.limit_hertz, s.joint_damping_ratio, h)
+        # Tree joints are stiffer than Gauss-Seidel rows: the tree solve is
+        # exact, while loop-closing rows fight it and gained energy when stiff
+        # (benchmarks.stability sphere_grid at 240 Hz: +127 J). Both are capped
+        # at half the substep rate (hω <= π), like contact_hertz.
+        cap = JOINT_HERTZ_CAP / h
+        tree_hz = s.joint_hertz if math.isinf(s.joint_hertz) else min(s.joint_hertz, cap)
+        gs_hz = s.gs_joint_hertz if math.isinf(s.gs_joint_hertz) else min(s.gs_joint_hertz, cap)
+        self._tree_soft = make_soft(tree_hz, s.joint_damping_ratio, h)
+        self._soft = make_soft(gs_hz, s.gs_joint_damping_ratio, h)
+        self._limit_soft = make_soft(s.limit_hertz, s.gs_joint_damping_ratio, h)
         self._substeps_done = 0
         if self.tree is not None:
             self.tree.begin_step(self, model, state, h)
@@ -280,7 +289,7 @@ class JointSet:
             self._ang_sum = np.zeros(state.joint_linear_impulse.shape[:2])
         if s.solver == "thesis":
             self._soft = make_soft(0.0, 0.0, h)  # rigid rows, position error by projection
-            self._limit_soft = self._soft
+            self._limit_soft = self._tree_soft = self._soft
 
     def _active(self, state, idx):
         return (~state.joint_broken[:, idx]).astype(float)
@@ -369,21 +378,29 @@ class JointSet:
         state.angular_velocity[:, b] += mat_vec(self._iinv[:, b], cross(rb, P) + L)
 
     def solve(self, model, state, h, use_bias):
-        soft = self._soft
-        rigid_bias = self.settings.solver == "thesis"
+        # The equality rows (tree and Gauss-Seidel) run in the biased solve, and
+        # in the relax only with joint_relax; the limit rows run after them in
+        # every solve, so a limb driven into its limit ends each solve on it.
+        if use_bias or self.settings.joint_relax:
+            self._solve_equality(model, state, h, use_bias)
         for color in self.colors:
             if color["twist_limit"].size:
                 self._solve_twist_limits(model, state, color["twist_limit"], h, use_bias, self._limit_soft)
             if color["swing_limit"].size:
                 self._solve_swing_limits(model, state, color["swing_limit"], h, use_bias, self._limit_soft)
+
+    def _solve_equality(self, model, state, h, use_bias):
+        soft = self._soft
+        bias = use_bias and self.settings.solver != "thesis"
+        for color in self.colors:
             if color["hinge"].size:
-                self._solve_hinge_lock(model, state, color["hinge"], h, use_bias and not rigid_bias, soft)
+                self._solve_hinge_lock(model, state, color["hinge"], h, bias, soft)
             if color["fixed"].size:
-                self._solve_fixed_lock(model, state, color["fixed"], h, use_bias and not rigid_bias, soft)
+                self._solve_fixed_lock(model, state, color["fixed"], h, bias, soft)
             if color["point"].size:
-                self._solve_point(model, state, color["point"], h, use_bias and not rigid_bias, soft)
+                self._solve_point(model, state, color["point"], h, bias, soft)
         if self.tree is not None:
-            bias_rate, mass_scale, impulse_scale = self._soft_terms(use_bias, soft)
+            bias_rate, mass_scale, impulse_scale = self._soft_terms(use_bias, self._tree_soft)
             self.tree.solve(self, model, state, bias_rate, mass_scale, impulse_scale, use_bias, h)
 
     def _soft_terms(self, use_bias, soft):

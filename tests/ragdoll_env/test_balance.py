@@ -147,12 +147,21 @@ def test_default_pushes_hit_chest_or_pelvis():
     assert bodies and bodies <= {"chest", "pelvis"}
 
 
-def test_standing_pd_is_quiet_at_the_standing_pose():
+def test_standing_pd_at_the_standing_pose_gives_only_its_feed_forward():
+    """The PD terms vanish at the standing pose; what is left is the static load
+    (knees pressed onto their limit, small gravity and balance torques)."""
     env = make("Ragdoll/Balance-v0", reset_noise_scale=0.0)
     obs, _ = env.reset(seed=0)
+    names = env.unwrapped.actuator_names
+    pd_only = StandingPD(env, gravity=False, balance=False, knee_lock=0.0).act(obs)
+    assert pd_only.shape == (31,) and pd_only.dtype == np.float32
+    assert np.abs(pd_only).max() < 1e-3
     a = StandingPD(env).act(obs)
-    assert a.shape == (31,) and a.dtype == np.float32
-    assert np.abs(a).max() < 1e-3
+    knees = np.array([n.startswith("knee") for n in names])
+    assert np.all(a[knees] < -0.05)
+    assert np.abs(a[~knees]).max() < 0.1
+    batch = StandingPD(env).act(np.stack([obs, obs]))
+    assert batch.shape == (2, 31) and np.array_equal(batch[1], a)
 
 
 # ---------------------------------------------------------------- contacts needed
@@ -198,25 +207,53 @@ def test_zero_torque_falls_onto_the_ground():
     assert u.state.position[0, u.task.pelvis, 2] > 0.05
 
 
+def balance_worlds(num, **kwargs):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return gym.make_vec("Ragdoll/Balance-v0", num_envs=num, vectorization_mode="vector_entry_point", **kwargs)
+
+
+def first_termination(envs, controller, seed, steps):
+    """Step a vector env of Balance worlds (seeded seed + i) under a controller;
+    returns each world's first terminating step (steps + 1 if none), whether it
+    was truncated at the end, its return until then and its last info."""
+    obs, _ = envs.reset(seed=seed)
+    W = envs.num_envs
+    fell = np.full(W, steps + 1)
+    total = np.zeros(W)
+    for step in range(1, steps + 1):
+        obs, r, term, trunc, info = envs.step(controller.act(obs))
+        alive = fell > steps
+        total += np.where(alive, r, 0.0)
+        fell[alive & term] = step
+    return fell, trunc, total, info
+
+
+def test_standing_pd_stands_and_zero_torque_falls():
+    """contacts: without pushes the PD baseline keeps three seeds standing for
+    5 s; without torques the same seeds fall within 1.5 s (knees buckling)."""
+    envs = balance_worlds(3, push_strength=(0.0, 0.0))
+    needs_contacts(envs)
+    steps = int(round(5.0 / envs.unwrapped.dt))
+    fell, _, _, info = first_termination(envs, StandingPD(envs), 0, steps)
+    assert np.all(fell > steps), f"fell at steps {fell}"
+    assert np.all(info["head_height"] > 1.4)
+    fell, *_ = first_termination(envs, ZeroTorque(envs), 0, int(round(1.5 / envs.unwrapped.dt)))
+    assert np.all(fell <= int(round(1.5 / envs.unwrapped.dt))), f"zero torque fell at steps {fell}"
+
+
 @pytest.mark.slow
 def test_standing_pd_stands_20_seconds_without_pushes():
-    """contacts: the PD baseline keeps the humanoid standing for a whole 20 s episode."""
-    env = balance(push_strength=0)
-    needs_contacts(env)
-    u = env.unwrapped
-    obs, _ = env.reset(seed=0)
-    pd = StandingPD(env)
-    total, steps = 0.0, 0
-    while True:
-        obs, r, term, trunc, info = env.step(pd.act(obs))
-        total += r
-        steps += 1
-        assert not term, f"fell after {steps * u.dt:.2f} s: {info}"
-        if trunc:
-            break
-    assert steps == env.spec.max_episode_steps
-    assert info["head_height"] > 1.4
-    assert total > 0.9 * u.max_return
+    """contacts: the PD baseline keeps the humanoid standing for whole 20 s episodes, seeds 0-9."""
+    envs = balance_worlds(10, push_strength=(0.0, 0.0))
+    needs_contacts(envs)
+    steps = envs.unwrapped.core.max_episode_steps
+    assert steps == 600
+    fell, trunc, total, info = first_termination(envs, StandingPD(envs), 0, steps)
+    assert np.all(fell > steps), f"fell at steps {fell}"
+    assert np.all(trunc)
+    assert np.all(info["head_height"] > 1.4)
+    assert np.all(total > 0.9 * envs.unwrapped.max_return)
 
 
 @pytest.mark.slow
