@@ -31,7 +31,7 @@ import numpy as np
 
 import engine as e
 from engine import diagnostics as D
-from engine.settings import Settings
+from engine.settings import ACCURATE, Settings
 
 from . import scenarios as sc
 from .common import format_value, machine_note, print_table, write_json
@@ -53,11 +53,12 @@ GRID = [
     ("rk4", dict(integrator="rk4")),
     ("dt=1/30 sub=1", dict(dt=1 / 30, substeps=1)),
     ("dt=1/120 sub=8 it=2", dict(dt=1 / 120, substeps=8, iterations=2)),
+    ("accurate", dict(ACCURATE)),
     ("thesis dt=1/60", dict(substeps=1, **THESIS)),
     ("thesis dt=1/120", dict(dt=1 / 120, substeps=1, **THESIS)),
     ("thesis dt=1/60 sub=4", dict(substeps=4, **THESIS)),
 ]
-QUICK_GRID = ["default", "dt=1/30 sub=1", "dt=1/120 sub=8 it=2", "thesis dt=1/60"]
+QUICK_GRID = ["default", "accurate", "dt=1/30 sub=1", "dt=1/120 sub=8 it=2", "thesis dt=1/60"]
 
 # Simulated seconds per scenario (full, quick).
 DURATIONS = {
@@ -93,7 +94,8 @@ PRIMARY = {
 def settings_dict(label, s: Settings, **extra):
     d = {"label": label, "default": s == DEFAULT, "dt": s.dt, "substeps": s.substeps, "iterations": s.iterations,
          "relax_iterations": s.relax_iterations, "integrator": s.integrator, "solver": s.solver,
-         "joint_hertz": s.joint_hertz, "contact_hertz": s.contact_hertz,
+         "joint_hertz": s.joint_hertz, "joint_damping_ratio": s.joint_damping_ratio,
+         "joint_relax": s.joint_relax, "contact_hertz": s.contact_hertz,
          "thesis_baseline": s.solver == "thesis" and s.integrator == "euler"}
     d.update(extra)
     return d

@@ -1,7 +1,7 @@
 """Evaluate a trained run against the shipped baselines.
 
     python -m training.evaluate runs/InvertedPendulum-v0-0 --episodes 20 --json eval.json
-    python -m training.evaluate runs/Balance-v0-0 --push-strength 10 30 --push-interval 1 3 --deterministic
+    python -m training.evaluate runs/Balance-v0-0 --push-strength 10 30 --push-interval 1 3
     python -m training.evaluate runs/ip --video videos/ --video-episodes 2
 
 Loads ``best_model.zip`` (else ``final_model.zip``, else the last checkpoint)
@@ -34,7 +34,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--video", metavar="DIR", default=None,
                    help="record the agent with gymnasium's RecordVideo (render_mode='rgb_array') into DIR")
     p.add_argument("--video-episodes", type=int, default=1, help="episodes to record with --video (default 1)")
-    p.add_argument("--deterministic", action="store_true", help="act with the policy's mean action")
+    p.add_argument("--stochastic", dest="deterministic", action="store_false",
+                   help="sample actions from the policy (default: its mean action, as SB3's evaluate_policy and "
+                        "the training run's evaluations)")
+    p.add_argument("--deterministic", dest="deterministic", action="store_true",
+                   help="act with the policy's mean action (the default)")
     p.add_argument("--seed", type=int, default=12345, help="seed of the evaluation worlds (default 12345)")
     p.add_argument("--num-envs", type=int, default=8, help="worlds stepped together (default 8)")
     p.add_argument("--push-strength", type=float, nargs=2, metavar=("LO", "HI"), default=None,

@@ -248,3 +248,21 @@ def test_tree_joint_solve_is_exact_and_independent_of_world_count():
         states.append(state)
     np.testing.assert_array_equal(states[1].angular_velocity, np.broadcast_to(states[0].angular_velocity,
                                                                               states[1].angular_velocity.shape))
+
+
+def test_accurate_preset_pendulum_period_within_1e_4_of_elliptic():
+    # engine.ACCURATE: 8 substeps, 240 Hz / ζ 0.5 tree joints, no joint relax.
+    model, _, exact = compound_pendulum(math.pi / 2, **e.ACCURATE)
+    period = measured_period(model, expected=exact)
+    assert abs(period - exact) / exact < 1e-4
+
+
+@pytest.mark.slow
+def test_accurate_preset_pendulum_energy_drift_under_1_percent_over_60_s():
+    model, _, _ = compound_pendulum(math.pi / 2, **e.ACCURATE)
+    state = model.initial_state(1)
+    e0 = total_energy(model, state)[0]
+    scale = 1.0 * G * 0.25  # the 90° release's drop: m g L/2
+    for _ in range(int(60 / model.settings.dt)):
+        e.step(model, state)
+    assert abs(total_energy(model, state)[0] - e0) / scale < 0.01

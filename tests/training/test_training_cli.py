@@ -35,8 +35,9 @@ def test_tiny_run_writes_model_summary_and_evaluates(tiny_run, tmp_path):
     assert summary["config"]["ppo"]["n_steps"] == 64
 
     out = tmp_path / "eval.json"
-    evaluate.main([str(tiny_run), "--episodes", "2", "--json", str(out), "--deterministic"])
+    evaluate.main([str(tiny_run), "--episodes", "2", "--json", str(out)])
     res = json.loads(out.read_text())
+    assert res["deterministic"] is True  # the mean action by default, as SB3's evaluate_policy
     for key in KEYS:
         assert key in res, key
     assert res["episodes"] == 2 and res["model"] == "best_model"
