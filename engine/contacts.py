@@ -34,9 +34,14 @@ class ContactSet:
         self.friction_on = "friction" in fx
         self.restitution_on = "restitution" in fx
         excluded = set()
+        # Bodies held by a joint: their impacts need the joint solve (restitution).
+        self.jointed = np.zeros(len(builder.bodies), dtype=bool)
         for j in builder.joints:
             if not j.collide_connected:
                 excluded.add((j.parent, j.child))
+            for body in (j.parent, j.child):
+                if body is not None and body >= 0:
+                    self.jointed[body] = True
         if "self_collision" not in fx:
             excluded |= _same_articulation_pairs(builder)
         group = np.array([b.collision_group for b in builder.bodies], dtype=np.int64)
