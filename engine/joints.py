@@ -579,6 +579,9 @@ def compile_joints(model, builder):
 # result of a world never depends on the number of worlds.
 
 
+ACTIVE_SET_TOLERANCE = 1e-6  # rad/s: a limit row closing faster than this after a solve joins the active set
+
+
 def _mm(A, B):
     """(..., n, k) @ (..., k, m) written out over k."""
     out = A[..., :, 0, None] * B[..., None, 0, :]
@@ -878,7 +881,11 @@ class _TreeSolver:
         lo, hi = js.lower[idx], js.upper[idx]
         C_lo = np.where(np.isfinite(lo), twist - np.where(np.isfinite(lo), lo, 0.0), np.inf)
         C_hi = np.where(np.isfinite(hi), np.where(np.isfinite(hi), hi, 0.0) - twist, np.inf)
-        lower = C_lo <= C_hi
+        # One twist row per joint: the bound the twist is heading for by the
+        # substep's end (a light limb can cross the whole range in a substep).
+        wrel = state.angular_velocity[:, b] - state.angular_velocity[:, a]
+        ahead = h * dot(Jt, wrel)
+        lower = C_lo + ahead <= C_hi - ahead
         sigma_t = np.where(lower, 1.0, -1.0)
         C_t = np.minimum(C_lo, C_hi)
         W, nj = twist.shape
@@ -931,13 +938,18 @@ class _TreeSolver:
                 r2[..., row] = np.where(use, lr[..., k], r2[..., row])
                 m2[..., row] = np.where(use, 1.0, m2[..., row])
             x = self._factor_solve(Ja2, Jb2, m2, r2)
+            lim = m2 - mask  # rows taken by limits (free slots of the joint): rigid, whole λ
+            d = (-mass_scale * x - impulse_scale * self._lam(state)) * mask - x * lim
             lam_lim = -x[..., 3:5]
             bad = active[..., :2] & (sigma[..., :2] * lam_lim < 0)
-            if not bad.any():
+            # Rows the solve's impulses would drive past their limit join.
+            after = self._rows_after(js, state, a, b, Ja2, Jb2, d, lrows, lr)
+            add = exists[..., :2] & ~active[..., :2] & (sigma[..., :2] * after[..., :2] < -ACTIVE_SET_TOLERANCE)
+            if not (bad.any() or add.any()):
                 break
-            active[..., :2] &= ~bad
-        lim = m2 - mask  # rows taken by limits (free slots of the joint): rigid, whole λ
-        d = (-mass_scale * x - impulse_scale * self._lam(state)) * mask - x * lim
+            # Drop pulling rows first; add violated rows once none pulls.
+            bad_joint = bad.any(axis=-1, keepdims=True)
+            active[..., :2] = (active[..., :2] & ~bad) | (add & ~bad_joint)
         self._apply(js, model, state, a, b, Ja2, Jb2, d)
         # Store: twist row impulse is λ_lo - λ_hi, swing row λ_swing.
         idx = self.joints
@@ -945,6 +957,15 @@ class _TreeSolver:
         state.joint_limit_impulse[:, idx, 0] = np.where(lower, tw, 0.0)
         state.joint_limit_impulse[:, idx, 1] = np.where(lower, 0.0, -tw)
         state.joint_limit_impulse[:, idx, 2] = d[..., 4] * lim[..., 4]
+
+    def _rows_after(self, js, state, a, b, Ja, Jb, d, lrows, lr):
+        """Limit row values (lr is at the current velocities) after the
+        impulses Jᵀd: lr + J_lim (Δω_b - Δω_a)."""
+        imp = np.zeros(state.angular_velocity.shape[:2] + (6,))
+        _scatter_add(imp, self.split_a, _mtv(Ja, d))
+        _scatter_add(imp, self.split_b, _mtv(Jb, d))
+        dw = mat_vec(self.iinv, imp[..., 3:])
+        return lr + mat_vec(lrows, dw[:, b] - dw[:, a])
 
     def _lam(self, state):
         idx = self.joints

@@ -13,12 +13,15 @@ INTEGRATORS = ("symplectic", "euler", "rk4")
 SOLVERS = ("soft_step", "thesis")
 JOINT_SOLVERS = ("tree", "gauss_seidel")
 
-#: Settings for accuracy over speed (``Settings(**ACCURATE)``): stiff tree
-#: joints at 8 substeps with no joint relax. Measured (benchmarks.accuracy):
-#: pendulum period error 9.6e-5 and energy drift 0.23% over 60 s, double
-#: pendulum energy within 0.5% over 20 s, for about 1.2x the default's cost on
-#: the ragdoll; but a ragdoll resting on the ground keeps moving at ~6 cm/s.
-ACCURATE = {"substeps": 8, "joint_hertz": 240.0, "joint_damping_ratio": 0.5, "joint_relax": False}
+#: Settings for accuracy over speed (``Settings(**ACCURATE)``): rigid tree
+#: joints with their limits inside the tree solve, at 8 substeps. Measured
+#: (tests/engine/test_joints.py, benchmarks.accuracy; figures in the README):
+#: compound pendulum period within 0.003%, double pendulum energy within 0.8% over 20 s, humanoid in free fall
+#: under bang-bang maximum torques: anchor error under 2 mm and limits within
+#: 1.5°, at about 1.3x the default's cost on the ragdoll; a ragdoll resting on
+#: the ground keeps moving at up to ~16 cm/s (the Gauss-Seidel contacts fight
+#: the rigid joints), so the defaults stay soft.
+ACCURATE = {"substeps": 8, "joint_hertz": math.inf, "joint_limits_in_tree": True}
 
 
 @dataclass(frozen=True)
@@ -53,9 +56,12 @@ class Settings:
         inf), solve the twist and swing limit rows inside the tree solve (one
         more row in each joint's free angular slots) with an active set, instead
         of Gauss-Seidel rows before it. Off by default: single limited joints
-        improve (ball into its limits at 50 N·m: 1.3° vs 3.5° over the limit;
-        hinge 0.15° vs 0.56°), but the humanoid under bang-bang maximum torques
-        at 8 substeps diverged in a measurement (cause not yet found).
+        improve (ball into its limits at 50 N·m: 1.1° vs 2.2° over the limit;
+        rigid joints 0.14°), and with rigid joints at 8 substeps the humanoid
+        under bang-bang maximum torques keeps its limits within 1.5° (GS
+        rows: 7°); with soft joints the soft equality rows and the rigid limit
+        rows of one solve disagree, and at 4 substeps a light foot still
+        swings 16° past its cone within a substep. On in ``ACCURATE``.
     joint_active_set_passes: most factorisations per sweep for that active set.
     joint_hertz, joint_damping_ratio: softness of the joints the tree solver
         solves (Hz, -); capped at half the substep rate (hω <= π);
