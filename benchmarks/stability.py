@@ -23,6 +23,7 @@ ragdoll runs 2,000 steps instead of 100,000) and prints per case:
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import sys
 
@@ -42,6 +43,8 @@ def main(argv=None) -> int:
     p.add_argument("--json", metavar="PATH", help="write the results as JSON")
     p.add_argument("--case", nargs="+", metavar="NAME", help="only these cases")
     p.add_argument("--list", action="store_true", help="list the cases and exit")
+    p.add_argument("--settings", metavar="JSON", type=json.loads, default={},
+                   help='engine settings over each case\'s own, e.g. \'{"substeps": 8}\' (Infinity for inf)')
     args = p.parse_args(argv)
     names = case_names()
     if args.list:
@@ -55,6 +58,8 @@ def main(argv=None) -> int:
     rows = []
     for name in names:
         case = make_case(name)
+        if args.settings:
+            case.model = case.model.with_settings(**args.settings)
         r = run_case(case, quick=args.quick)
         row = r.row()
         row.update(energy_tol=case.energy_tol, anchor_bound=case.anchor_bound,
