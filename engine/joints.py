@@ -153,6 +153,17 @@ class JointSet:
                 "swing_limit": idx[has_swing[idx] & ~lim_in_tree[idx]],
                 "passive": idx[(self.damping[idx] > 0) | (self.stiffness[idx] > 0)],
             })
+        # Gauss-Seidel limit rows: their geometry is computed once per solve
+        # for all of them (positions do not move within a solve); each colour
+        # keeps its rows' positions in that list.
+        self.gs_limit = np.flatnonzero((has_limit | has_swing) & ~lim_in_tree)
+        where = {int(j): i for i, j in enumerate(self.gs_limit)}
+        self.passive_joints = np.flatnonzero((self.damping > 0) | (self.stiffness > 0))
+        where_passive = {int(j): i for i, j in enumerate(self.passive_joints)}
+        for color in self.colors:
+            color["passive_pos"] = np.array([where_passive[int(j)] for j in color["passive"]], dtype=np.int64)
+            color["twist_pos"] = np.array([where[int(j)] for j in color["twist_limit"]], dtype=np.int64)
+            color["swing_pos"] = np.array([where[int(j)] for j in color["swing_limit"]], dtype=np.int64)
         self.effect_names = {"joints"}
         if has_limit.any() or has_swing.any():
             self.effect_names.add("joint_limits")
@@ -162,6 +173,9 @@ class JointSet:
             self.effect_names.add("joint_breaking")
         self.settings = settings
         self._iinv = None
+        self._all = np.arange(J)
+        self._frames_on = False  # frames of _frames_state cached between begin_step and end_step
+        self._frames = self._frames_state = None
 
     # ------------------------------------------------------------------ state
     def initial_arrays(self, W):
@@ -175,7 +189,22 @@ class JointSet:
 
     # --------------------------------------------------------------- geometry
     def frames(self, state, idx):
-        """World joint frames of parent and child, anchors and lever arms."""
+        """World joint frames of parent and child, anchors and lever arms.
+
+        Within a step the frames of every joint are computed once per set of
+        positions (``positions_moved`` drops them) and sliced here."""
+        if self._frames_on and state is self._frames_state:
+            if self._frames is None:
+                self._frames = self._compute_frames(state, self._all)[2:]
+            fpw, fcw, ra, rb = self._frames
+            return self.parent[idx], self.child[idx], fpw[:, idx], fcw[:, idx], ra[:, idx], rb[:, idx]
+        return self._compute_frames(state, idx)
+
+    def positions_moved(self):
+        """The bodies moved: frames cached within the step are stale."""
+        self._frames = None
+
+    def _compute_frames(self, state, idx):
         a, b = self.parent[idx], self.child[idx]
         qa, qb = state.orientation[:, a], state.orientation[:, b]
         fpw = quat_mul(qa, self.frame_p[idx])
@@ -241,23 +270,34 @@ class JointSet:
 
     def passive(self, model, state, h):
         """Muscle tone: an implicit spring-damper on each joint axis towards the
-        rest angles, k (N·m/rad) and c (N·m·s/rad), stable for any stiffness."""
+        rest angles, k (N·m/rad) and c (N·m·s/rad), stable for any stiffness.
+        The geometry (axes, angles, inverse masses) is computed once for every
+        passive joint; the colours then sweep the velocities."""
+        idx_all = self.passive_joints
+        if not idx_all.size:
+            return
+        a_all, b_all, fpw, _, _, _ = self.frames(state, idx_all)
+        ang = self.angles(state, idx_all)
+        ia_all, ib_all = self._iinv[:, a_all], self._iinv[:, b_all]
+        axes, inv_ms = [], []
+        for e in (_EX, _EY, _EZ):
+            axis = quat_rotate(fpw, np.broadcast_to(e, fpw.shape[:-1] + (3,)))
+            axes.append(axis)
+            inv_ms.append(dot(axis, mat_vec(ia_all, axis)) + dot(axis, mat_vec(ib_all, axis)))
         for color in self.colors:
-            idx = color["passive"]
+            idx, pos = color["passive"], color["passive_pos"]
             if idx.size == 0:
                 continue
-            a, b, fpw, fcw, _, _ = self.frames(state, idx)
-            ang = self.angles(state, idx)
-            ia, ib = self._iinv[:, a], self._iinv[:, b]
+            a, b = self.parent[idx], self.child[idx]
+            ia, ib = ia_all[:, pos], ib_all[:, pos]
             wa, wb = state.angular_velocity[:, a], state.angular_velocity[:, b]
             n_axes = 1 if (self.kind[idx] == HINGE).all() else 3
             active = self._active(state, idx)
-            for k, e in enumerate((_EX, _EY, _EZ)[:n_axes]):
-                axis = quat_rotate(fpw, np.broadcast_to(e, fpw.shape[:-1] + (3,)))
+            for k in range(n_axes):
+                axis = axes[k][:, pos]
                 use = active * ((self.kind[idx] == BALL) | (k == 0)) * (self.kind[idx] != FIXED)
-                inv_m = dot(axis, mat_vec(ia, axis)) + dot(axis, mat_vec(ib, axis))
                 p = implicit_spring_impulse(self.stiffness[idx], self.damping[idx], h,
-                                            ang[..., k] - self.rest[idx, k], dot(wb - wa, axis), inv_m)
+                                            ang[:, pos, k] - self.rest[idx, k], dot(wb - wa, axis), inv_ms[k][:, pos])
                 p = (p * use)[..., None] * axis
                 wa = wa - mat_vec(ia, p)
                 wb = wb + mat_vec(ib, p)
@@ -267,6 +307,7 @@ class JointSet:
     # ----------------------------------------------------------------- solver
     def begin_step(self, model, state, h):
         """World inverse inertias for the step (Box2D prepares once per step)."""
+        self._frames_on, self._frames, self._frames_state = True, None, state
         self._iinv = world_inv_inertia(state.orientation, model.inv_inertia)
         s = self.settings
         # Tree joints are stiffer than Gauss-Seidel rows: the tree solve is
@@ -383,11 +424,40 @@ class JointSet:
         # every solve, so a limb driven into its limit ends each solve on it.
         if use_bias or self.settings.joint_relax:
             self._solve_equality(model, state, h, use_bias)
+        if not self.gs_limit.size:
+            return
+        rows = self._gs_limit_rows(state)
+        soft = self._limit_soft
         for color in self.colors:
-            if color["twist_limit"].size:
-                self._solve_twist_limits(model, state, color["twist_limit"], h, use_bias, self._limit_soft)
-            if color["swing_limit"].size:
-                self._solve_swing_limits(model, state, color["swing_limit"], h, use_bias, self._limit_soft)
+            pos, idx = color["twist_pos"], color["twist_limit"]
+            if idx.size:
+                a, b = self.parent[idx], self.child[idx]
+                Jt, m = rows["Jt"][:, pos], rows["m_twist"][:, pos]
+                self._one_sided(state, a, b, Jt, rows["C_lo"][:, pos], m, 0, idx, h, use_bias, soft)
+                self._one_sided(state, a, b, -Jt, rows["C_hi"][:, pos], m, 1, idx, h, use_bias, soft)
+            pos, idx = color["swing_pos"], color["swing_limit"]
+            if idx.size:
+                self._one_sided(state, self.parent[idx], self.child[idx], rows["Js"][:, pos],
+                                rows["C_swing"][:, pos], rows["m_swing"][:, pos], 2, idx, h, use_bias, soft)
+
+    def _gs_limit_rows(self, state):
+        """Axes, errors (C >= 0 allowed) and effective masses of every
+        Gauss-Seidel limit row, at the solve's positions."""
+        idx = self.gs_limit
+        a, b, fpw, fcw, _, _ = self.frames(state, idx)
+        Jt, twist, Js, C_swing = self._limit_rows(idx, fpw, fcw)
+        lo, hi = self.lower[idx], self.upper[idx]
+        has_lo, has_hi = np.isfinite(lo), np.isfinite(hi)
+        ia, ib = self._iinv[:, a], self._iinv[:, b]
+
+        def effective_mass(axis):
+            k = dot(axis, mat_vec(ia, axis)) + dot(axis, mat_vec(ib, axis))
+            return 1.0 / np.maximum(k, 1e-30)
+
+        return {"Jt": Jt, "Js": Js, "C_swing": C_swing,
+                "C_lo": np.where(has_lo, twist - np.where(has_lo, lo, 0.0), 1e9),
+                "C_hi": np.where(has_hi, np.where(has_hi, hi, 0.0) - twist, 1e9),
+                "m_twist": effective_mass(Jt), "m_swing": effective_mass(Js)}
 
     def _solve_equality(self, model, state, h, use_bias):
         soft = self._soft
@@ -475,12 +545,10 @@ class JointSet:
         state.angular_velocity[:, a] -= mat_vec(ia, L)
         state.angular_velocity[:, b] += mat_vec(ib, L)
 
-    def _one_sided(self, state, a, b, axis, C, slot, idx, h, use_bias, soft):
-        """One-sided angular row about ``axis`` keeping C >= 0 (Box2D v3 limits):
-        speculative bias C/h while open, soft bias when violated."""
+    def _one_sided(self, state, a, b, axis, C, m, slot, idx, h, use_bias, soft):
+        """One-sided angular row about ``axis`` keeping C >= 0 (Box2D v3 limits),
+        effective mass m: speculative bias C/h while open, soft bias when violated."""
         ia, ib = self._iinv[:, a], self._iinv[:, b]
-        k = dot(axis, mat_vec(ia, axis)) + dot(axis, mat_vec(ib, axis))
-        m = 1.0 / np.maximum(k, 1e-30)
         cdot = dot(state.angular_velocity[:, b] - state.angular_velocity[:, a], axis)
         bias_rate, mass_scale, impulse_scale = self._soft_terms(use_bias, soft)
         open_ = C > 0.0
@@ -496,22 +564,8 @@ class JointSet:
         state.angular_velocity[:, a] -= mat_vec(ia, L)
         state.angular_velocity[:, b] += mat_vec(ib, L)
 
-    def _solve_twist_limits(self, model, state, idx, h, use_bias, soft):
-        a, b, fpw, fcw, _, _ = self.frames(state, idx)
-        Jt, twist, _, _ = self._limit_rows(idx, fpw, fcw)
-        lo, hi = self.lower[idx], self.upper[idx]
-        has_lo, has_hi = np.isfinite(lo), np.isfinite(hi)
-        C_lo = np.where(has_lo, twist - np.where(has_lo, lo, 0.0), 1e9)
-        self._one_sided(state, a, b, Jt, C_lo, 0, idx, h, use_bias, soft)
-        C_hi = np.where(has_hi, np.where(has_hi, hi, 0.0) - twist, 1e9)
-        self._one_sided(state, a, b, -Jt, C_hi, 1, idx, h, use_bias, soft)
-
-    def _solve_swing_limits(self, model, state, idx, h, use_bias, soft):
-        a, b, fpw, fcw, _, _ = self.frames(state, idx)
-        _, _, Js, C = self._limit_rows(idx, fpw, fcw)
-        self._one_sided(state, a, b, Js, C, 2, idx, h, use_bias, soft)
-
     def end_step(self, model, state, h, events):
+        self._frames_on, self._frames, self._frames_state = False, None, None
         if self.settings.solver == "thesis":
             self._project_positions(model, state)
         if not self.breakable:

@@ -64,20 +64,24 @@ def step(model, state, control: Control | None = None):
             _velocity_effects(model, state, h, passive)
             _solve(model, state, constraints, h, use_bias=True)
             integrate_positions(model, state, h)
+            _positions_moved(model)
             _solve(model, state, constraints, h, use_bias=False)
         elif s.integrator == "euler":
             explicit_euler(model, state, control, h)
+            _positions_moved(model)
             _velocity_effects(model, state, h, passive)
             _solve(model, state, constraints, h, use_bias=True)
             _solve(model, state, constraints, h, use_bias=False)
         else:
             runge_kutta4(model, state, control, h)
+            _positions_moved(model)
             v1, w1 = state.velocity.copy(), state.angular_velocity.copy()
             _velocity_effects(model, state, h, passive)
             _solve(model, state, constraints, h, use_bias=True)
             # Constraint impulses move the positions by h Δv beyond the RK4 flow.
             state.position += h * (state.velocity - v1)
             state.orientation[...] = quat_integrate(state.orientation, state.angular_velocity - w1, h)
+            _positions_moved(model)
             _solve(model, state, constraints, h, use_bias=False)
     for c in constraints:
         c.end_step(model, state, h, events)
@@ -90,6 +94,11 @@ def step(model, state, control: Control | None = None):
         if bad.size:
             raise _nonfinite_error(model, state, bad)
     return state
+
+
+def _positions_moved(model):
+    if model.joints is not None:
+        model.joints.positions_moved()
 
 
 def _velocity_effects(model, state, h, passive):
