@@ -16,9 +16,10 @@ JOINT_SOLVERS = ("tree", "gauss_seidel")
 #: Settings for accuracy over speed (``Settings(**ACCURATE)``): rigid tree
 #: joints with their limits inside the tree solve, at 8 substeps. Measured
 #: (tests/engine/test_joints.py, benchmarks.accuracy; figures in the README):
-#: compound pendulum period within 0.003%, double pendulum energy within 0.8% over 20 s, humanoid in free fall
-#: under bang-bang maximum torques: anchor error under 2 mm and limits within
-#: 1.5°, at about 1.3x the default's cost on the ragdoll; a ragdoll resting on
+#: compound pendulum period within 0.003%, double pendulum energy within 0.8%
+#: over 20 s, humanoid in free fall under bang-bang maximum torques: anchor
+#: error about 2 mm and limits within 1.5-2.4°, at about twice the default's
+#: cost on the ragdoll; a ragdoll resting on
 #: the ground keeps moving at up to ~16 cm/s (the Gauss-Seidel contacts fight
 #: the rigid joints), so the defaults stay soft.
 ACCURATE = {"substeps": 8, "joint_hertz": math.inf, "joint_limits_in_tree": True}
@@ -58,7 +59,7 @@ class Settings:
         of Gauss-Seidel rows before it. Off by default: single limited joints
         improve (ball into its limits at 50 N·m: 1.1° vs 2.2° over the limit;
         rigid joints 0.14°), and with rigid joints at 8 substeps the humanoid
-        under bang-bang maximum torques keeps its limits within 1.5° (GS
+        under bang-bang maximum torques keeps its limits within 1.5-2.4° (GS
         rows: 7°); with soft joints the soft equality rows and the rigid limit
         rows of one solve disagree, and at 4 substeps a light foot still
         swings 16° past its cone within a substep. On in ``ACCURATE``.
