@@ -136,6 +136,9 @@ SLOW_XFAIL = {
 for _n in ("mass_ratio_sandwich", "stack_20", "overlap_recovery", "sphere_grid", "ragdoll_impact_100"):
     SLOW_XFAIL[_n + "_far"] = SLOW_XFAIL[_n]
 SLOW_XFAIL["ragdoll_pile_10_far"] = "measured (quick run): anchor error 2.5 cm > 1 cm"
+SLOW_XFAIL["pyramid_10"] = ("measured (full run): not at rest, the pyramid sways in its thin direction from 2 s "
+                            "on, top box at 0.23 m/s by 7.5 s (bound 0.05 m/s); gone with contact_damping_ratio "
+                            "1-3 or 8 substeps")
 
 
 @pytest.mark.parametrize("name", list(FAST))
