@@ -20,18 +20,20 @@ centres (fixed for the step) and relative velocity v_rel = (v_b + ω_b × r_b)
 * restitution: once per step after the substeps, as a sequence of impacts
   (the sequential-collision model of Guendelman, Bridson & Fedkiw 2003, which
   passes a Newton's cradle's momentum down the row; a simultaneous solve
-  spreads it over all balls). In a world where some point closed faster than
-  the threshold, the normal impulses this step put on points that were not
-  loaded at its start are taken off again, restoring the velocities before
-  the impact; then a few sweeps over the colours give every approaching row
-  one impact: its points' separating speeds become e times their closing
-  speeds, solved together within the row (a box landing flat bounces
-  without spin). Bodies held by joints are left to the joint solve: their
-  impact was solved with the joints, and their bouncing points only get the
-  impulse that raises their separating speed to the target. A point's first impact uses its closing speed just before it
-  first took load in the step (Box2D takes it at the step start; within a
-  step gravity adds up to g·dt to the closing speed, which would cost ~7% of
-  each bounce height at 60 Hz).
+  spreads it over all balls). Among free bodies, in the rows an impact can
+  reach, the normal and friction impulses this step put on points that were
+  not loaded at its start are taken off again, restoring the velocities
+  before the impact; then a few sweeps over the colours give every
+  approaching row one impact: its points' separating speeds become e times
+  their closing speeds, solved together within the row (a box landing flat
+  bounces without spin). Bodies held by joints are left to the joint solve:
+  their impact was solved with the joints, and their bouncing points only
+  get the impulse that raises their separating speed to the target. A
+  point's first impact uses its closing speed just before it first took load
+  in the step (Box2D takes it at the step start; within a step gravity adds
+  up to g·dt to the closing speed, which would cost ~7% of each bounce
+  height at 60 Hz), taken at the start of the row's sweep so all points of a
+  face share it.
 
 Rows are swept colour by colour (no (world, body) twice in a colour), the 4
 points of a row in sequence.
