@@ -54,6 +54,12 @@ IMPACT_TOLERANCE = 1e-9  # m/s: a loaded point closing faster than this takes an
 CONTACT_HERTZ_CAP = 0.25  # contact stiffness at most this fraction of the substep rate (Box2D v3)
 
 
+def _coulomb_scale(t1, t2, limit):
+    """Factor that brings the tangent impulse (t1, t2) into the disc |λ_t| <= limit."""
+    mag = np.sqrt(t1 * t1 + t2 * t2)
+    return np.where(mag > limit, limit / np.maximum(mag, 1e-30), 1.0)
+
+
 def _tangents(n):
     """Two unit tangents (K, 3) perpendicular to the unit normals n."""
     helper = np.where((np.abs(n[:, 0]) < 0.57)[:, None], np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]))
@@ -181,7 +187,7 @@ class ContactRows:
         return va, wa, vb, wb
 
     def warm_start(self, model, state):
-        if self.warm_starts:
+        if self.warm_starts and self.bouncy:  # only restitution takes them back
             self.lam_n_step += self.lam_n
             self.lam_t1_step += self.lam_t1
             self.lam_t2_step += self.lam_t2
@@ -254,9 +260,7 @@ class ContactRows:
                 l1, l2 = self.lam_t1[rows, j], self.lam_t2[rows, j]
                 n1 = l1 - self.mt1[rows, j] * dot(vrel, t1)
                 n2 = l2 - self.mt2[rows, j] * dot(vrel, t2)
-                limit = self.mu[rows, j] * self.lam_n[rows, j]
-                mag = np.sqrt(n1 * n1 + n2 * n2)
-                scale = np.where(mag > limit, limit / np.maximum(mag, 1e-30), 1.0)
+                scale = _coulomb_scale(n1, n2, self.mu[rows, j] * self.lam_n[rows, j])
                 n1 = np.where(ok, n1 * scale, 0.0)
                 n2 = np.where(ok, n2 * scale, 0.0)
                 self.lam_t1[rows, j], self.lam_t2[rows, j] = n1, n2
@@ -411,9 +415,7 @@ class ContactRows:
                 vrel = vb + cross(wb, rb) - va - cross(wa, ra)
                 n1 = l1[:, j] - self.mt1[rows, j] * dot(vrel, t1)
                 n2 = l2[:, j] - self.mt2[rows, j] * dot(vrel, t2)
-                limit = self.mu[rows, j] * lam[:, j]
-                mag = np.sqrt(n1 * n1 + n2 * n2)
-                scale = np.where(mag > limit, limit / np.maximum(mag, 1e-30), 1.0)
+                scale = _coulomb_scale(n1, n2, self.mu[rows, j] * lam[:, j])
                 n1 = np.where(live, n1 * scale, l1[:, j])
                 n2 = np.where(live, n2 * scale, l2[:, j])
                 change = np.maximum(change, np.maximum(np.abs(n1 - l1[:, j]), np.abs(n2 - l2[:, j])))

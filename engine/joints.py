@@ -1015,11 +1015,15 @@ class _TreeSolver:
     def _rows_after(self, js, state, a, b, Ja, Jb, d, lrows, lr):
         """Limit row values (lr is at the current velocities) after the
         impulses Jᵀd: lr + J_lim (Δω_b - Δω_a)."""
-        imp = np.zeros(state.angular_velocity.shape[:2] + (6,))
+        dw = mat_vec(self.iinv, self._body_impulses(Ja, Jb, d)[..., 3:])
+        return lr + mat_vec(lrows, dw[:, b] - dw[:, a])
+
+    def _body_impulses(self, Ja, Jb, d):
+        """Jᵀ d summed per body: (W, num_bodies, 6) linear and angular impulses."""
+        imp = np.zeros((d.shape[0], self.num_bodies, 6))
         _scatter_add(imp, self.split_a, _mtv(Ja, d))
         _scatter_add(imp, self.split_b, _mtv(Jb, d))
-        dw = mat_vec(self.iinv, imp[..., 3:])
-        return lr + mat_vec(lrows, dw[:, b] - dw[:, a])
+        return imp
 
     def _lam(self, state):
         idx = self.joints
@@ -1036,10 +1040,7 @@ class _TreeSolver:
         new = lam + d * eqmask
         state.joint_linear_impulse[:, idx] = new[..., :3]
         state.joint_angular_impulse[:, idx] = new[..., 3:]
-        W = d.shape[0]
-        imp = np.zeros((W, self.num_bodies, 6))
-        _scatter_add(imp, self.split_a, _mtv(Ja, d))
-        _scatter_add(imp, self.split_b, _mtv(Jb, d))
+        imp = self._body_impulses(Ja, Jb, d)
         state.velocity += imp[..., :3] * model.inv_mass[:, None]
         state.angular_velocity += mat_vec(self.iinv, imp[..., 3:])
 
