@@ -8,6 +8,10 @@ Each entry has:
   uses names for ``activation_fn``: "tanh", "relu", "elu");
 * ``normalize``: keyword arguments of ``VecNormalize`` for the training env;
 * ``env_kwargs``: keyword arguments given to the environment (``gym.make``);
+* ``residual`` (optional): ``{"baseline": name, "scale": s}``: the policy's
+  action is added (times s) to a controller of ``ragdoll_env.baselines`` and
+  the sum clipped (:mod:`ragdoll_env.residual`); absent or null: the policy
+  acts alone;
 * ``eval``: ``freq`` (timesteps between evaluations), ``episodes``,
   ``num_envs`` of the separate evaluation env;
 * ``checkpoint_freq``: timesteps between checkpoints.
@@ -19,7 +23,10 @@ Starting points (RL Baselines3 Zoo, ``hyperparams/ppo.yml``):
   gae_lambda 0.8, gamma 0.98, 20 epochs, [64, 64] networks);
 * Balance follows the Zoo's Humanoid entry (normalised observations,
   lr 2.5e-4-ish, gamma 0.99, gae_lambda 0.95, ReLU [256, 256] networks with
-  ``log_std_init=-2`` and no orthogonal init), with more worlds per rollout.
+  ``log_std_init=-2``), with more worlds per rollout, and learns a residual
+  on the standing PD (``ragdoll_env.baselines.StandingPD``): SB3's orthogonal
+  init gives the action layer gain 0.01, so the first policy is the PD plus
+  exploration noise (σ = e⁻² ≈ 0.14 of each maximum torque).
 
 ``--config PATH`` (JSON or YAML) is merged over the entry, key by key (nested
 dicts merged recursively), e.g. ``{"ppo": {"learning_rate": 3e-4}}``.
@@ -79,10 +86,11 @@ CONFIGS = {
             "vf_coef": 0.5,
             "max_grad_norm": 0.5,
             "policy_kwargs": {"net_arch": {"pi": [256, 256], "vf": [256, 256]}, "activation_fn": "relu",
-                              "log_std_init": -2.0, "ortho_init": False},
+                              "log_std_init": -2.0, "ortho_init": True},
         },
         "normalize": {"norm_obs": True, "norm_reward": True, "clip_obs": 10.0, "gamma": 0.99},
         "env_kwargs": {},
+        "residual": {"baseline": "standing_pd", "scale": 1.0},
         "eval": {"freq": 100_000, "episodes": 16, "num_envs": 16},
         "checkpoint_freq": 250_000,
     },

@@ -11,13 +11,16 @@ here), and reports mean and std of the return, mean episode length, fall rate
 (episodes terminated before the time limit) and, where the environment counts
 them, pushes and pushes survived; the same for the baselines of
 ``ragdoll_env.baselines`` (zero torque; PD standing for Balance; LQR and PD
-for the pendulums) on the same seeds.
+for the pendulums) on the same seeds. A run trained as a residual on a
+baseline (its config's ``residual``, see :mod:`ragdoll_env.residual`) is
+evaluated the same way: the policy's action added to the baseline's.
 """
 
 from __future__ import annotations
 
 import argparse
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -123,13 +126,62 @@ def _make_venv(env_id, num_envs, seed, env_kwargs):
         raise C.TrainingError(f"cannot build {env_id} with {env_kwargs}: {exc}") from exc
 
 
-def record_video(env_id, env_kwargs, model, vecnorm, folder, episodes, deterministic, seed) -> list[str]:
+@dataclass
+class Agent:
+    """A run's evaluation model on a fresh batched env."""
+
+    label: str             # best_model, final_model or checkpoint_N
+    model_path: Path
+    vecnorm_path: Path | None
+    model: object          # the PPO model
+    env: object            # what to roll out: the VecEnv under the residual wrapper and VecNormalize
+    vecnorm: object | None
+    venv: object           # the bare SB3 VecEnv of the batched core
+
+    def act(self, obs, deterministic=True):
+        return self.model.predict(obs, deterministic=deterministic)[0]
+
+
+def load_agent(run, saved, num_envs, seed, env_kwargs) -> Agent:
+    """The run's model (see :func:`training.common.model_for_evaluation`) on
+    ``num_envs`` worlds seeded from ``seed``, with the run's residual baseline
+    (if any) under its observation normalisation, as in training."""
+    env_id = saved["env_id"]
+    label, model_path, vn_path = C.model_for_evaluation(run)
+    model = C.load_ppo(model_path)
+    venv = _make_venv(env_id, num_envs, seed, env_kwargs)
+    if model.observation_space.shape != venv.observation_space.shape:
+        raise C.TrainingError(f"{model_path} expects observations of shape {model.observation_space.shape}, "
+                              f"{env_id} gives {venv.observation_space.shape}")
+    vecnorm = None
+    env = _residual(venv, saved["config"].get("residual"))
+    if vn_path is not None:
+        vecnorm = C.load_vecnormalize(vn_path, env)
+        vecnorm.training, vecnorm.norm_reward = False, False
+        env = vecnorm
+    return Agent(label, model_path, vn_path, model, env, vecnorm, venv)
+
+
+def _residual(venv, spec):
+    from ragdoll_env.residual import residual_vec_env
+
+    try:
+        return residual_vec_env(venv, spec)
+    except (TypeError, ValueError) as exc:
+        raise C.TrainingError(f"bad residual settings in the run's config: {exc}") from exc
+
+
+def record_video(env_id, env_kwargs, model, vecnorm, folder, episodes, deterministic, seed,
+                 residual=None) -> list[str]:
     import gymnasium as gym
     from gymnasium.wrappers import RecordVideo
 
     import ragdoll_env  # noqa: F401 (registers the ids)
+    from ragdoll_env.residual import ResidualAction
 
     env = gym.make(env_id, render_mode="rgb_array", **env_kwargs)
+    if residual is not None:
+        env = ResidualAction(env, residual)
     env = RecordVideo(env, str(folder), episode_trigger=lambda i: i < episodes, name_prefix="agent",
                       disable_logger=True)
     try:
@@ -167,35 +219,25 @@ def evaluate(args) -> dict:
         env_kwargs["max_episode_steps"] = args.max_episode_steps
     num_envs = max(1, min(args.num_envs, args.episodes))
 
-    label, model_path, vn_path = C.model_for_evaluation(run)
-    model = C.load_ppo(model_path)
-    venv = _make_venv(env_id, num_envs, args.seed, env_kwargs)
-    if model.observation_space.shape != venv.observation_space.shape:
-        raise C.TrainingError(f"{model_path} expects observations of shape {model.observation_space.shape}, "
-                              f"{env_id} gives {venv.observation_space.shape}")
-    vecnorm = None
-    env = venv
-    if vn_path is not None:
-        vecnorm = C.load_vecnormalize(vn_path, venv)
-        vecnorm.training, vecnorm.norm_reward = False, False
-        env = vecnorm
-    agent = rollout(env, lambda obs: model.predict(obs, deterministic=args.deterministic)[0], args.episodes)
-    max_return = getattr(venv, "max_return", None)
+    residual = saved["config"].get("residual")
+    loaded = load_agent(run, saved, num_envs, args.seed, env_kwargs)
+    agent = rollout(loaded.env, lambda obs: loaded.act(obs, args.deterministic), args.episodes)
     result = {
         "run_dir": str(run),
         "env_id": env_id,
-        "model": label,
-        "model_path": str(model_path),
-        "vecnormalize_path": str(vn_path) if vn_path else None,
-        "model_timesteps": int(model.num_timesteps),
+        "model": loaded.label,
+        "model_path": str(loaded.model_path),
+        "vecnormalize_path": str(loaded.vecnorm_path) if loaded.vecnorm_path else None,
+        "model_timesteps": int(loaded.model.num_timesteps),
         "deterministic": bool(args.deterministic),
         "seed": args.seed,
         "env_kwargs": env_kwargs,
-        "max_return": max_return,
+        "residual": residual,
+        "max_return": getattr(loaded.venv, "max_return", None),
         **agent,
         "baselines": {},
     }
-    env.close()
+    loaded.env.close()
 
     if not args.no_baselines:
         for name in baseline_names(env_id):
@@ -211,8 +253,8 @@ def evaluate(args) -> dict:
     if args.video:
         folder = Path(args.video)
         try:
-            result["videos"] = record_video(env_id, env_kwargs, model, vecnorm, folder, args.video_episodes,
-                                            args.deterministic, args.seed)
+            result["videos"] = record_video(env_id, env_kwargs, loaded.model, loaded.vecnorm, folder,
+                                            args.video_episodes, args.deterministic, args.seed, residual)
         except Exception as exc:  # noqa: BLE001
             result["videos"] = []
             result["video_error"] = f"{type(exc).__name__}: {exc}"

@@ -116,6 +116,7 @@ def evaluation_summary(history) -> dict:
 def _make_envs(env_id, cfg, num_envs, seed, run: Path, monitor_name: str):
     from stable_baselines3.common.vec_env import VecMonitor, VecNormalize
 
+    from ragdoll_env.residual import residual_vec_env
     from ragdoll_env.sb3 import make_sb3_vec_env
 
     env_kwargs = dict(cfg.get("env_kwargs") or {})
@@ -123,6 +124,8 @@ def _make_envs(env_id, cfg, num_envs, seed, run: Path, monitor_name: str):
         venv = make_sb3_vec_env(env_id, num_envs=num_envs, seed=seed, **env_kwargs)
         n_eval = int(cfg["eval"].get("num_envs", 1))
         eval_venv = make_sb3_vec_env(env_id, num_envs=n_eval, seed=seed + 100_000, **env_kwargs)
+        venv = residual_vec_env(venv, cfg.get("residual"))
+        eval_venv = residual_vec_env(eval_venv, cfg.get("residual"))
     except (TypeError, ValueError) as exc:
         raise C.TrainingError(f"cannot build {env_id}: {exc}") from exc
     venv = VecMonitor(venv, filename=str(run / monitor_name))

@@ -1,0 +1,139 @@
+"""Residual control: a learned action added to a baseline controller's action.
+
+The policy's action r in [-1, 1] is added to the action of a controller from
+:mod:`ragdoll_env.baselines` computed on the same (raw) observation, and the
+sum is clipped to the action space::
+
+    a = clip(baseline(obs) + scale * r, -1, 1)       (torque / max torque)
+
+so a policy that outputs zeros is the baseline itself and learning starts
+from what the baseline can do (residual policy learning: Silver et al. 2018,
+arXiv:1812.06298; Johannink et al. 2019, ICRA). The environment is unchanged:
+its action is still every joint's torque, and its reward still charges the
+control cost of the summed action ``a``.
+
+* :func:`residual_vec_env` wraps an SB3 ``VecEnv`` (the batched adapter of
+  :mod:`ragdoll_env.sb3`, before VecMonitor and VecNormalize, so the
+  baseline sees raw observations);
+* :class:`ResidualAction` wraps a single Gymnasium env (videos, the checkers).
+
+``training.train`` builds them from a config's ``residual`` entry
+(``{"baseline": "standing_pd", "scale": 1.0}``) and ``training.evaluate``
+evaluates the policy the same way.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+try:  # gymnasium is a dependency of ragdoll_env; the SB3 wrapper imports SB3 lazily
+    import gymnasium as gym
+except ImportError:  # pragma: no cover
+    gym = None
+
+
+def check_residual(spec) -> dict | None:
+    """The validated residual settings ``{"baseline": name, "scale": s}`` of
+    a config entry (a dict, or None for no residual), else ValueError."""
+    from .baselines import BASELINES
+
+    if spec is None:
+        return None
+    if not isinstance(spec, dict):
+        raise ValueError(f"residual must be a mapping {{'baseline': name, 'scale': s}} or null, got {spec!r}")
+    unknown = set(spec) - {"baseline", "scale", "kwargs"}
+    if unknown:
+        raise ValueError(f"residual: unknown keys {sorted(unknown)}; keys: baseline, scale, kwargs")
+    name = spec.get("baseline")
+    if name not in BASELINES or name == "zero":
+        raise ValueError(f"residual: baseline must be one of {sorted(set(BASELINES) - {'zero'})}, got {name!r}")
+    scale = spec.get("scale", 1.0)
+    if not isinstance(scale, (int, float)) or not np.isfinite(scale) or scale <= 0:
+        raise ValueError(f"residual: scale must be a finite number > 0, got {scale!r}")
+    kwargs = spec.get("kwargs") or {}
+    if not isinstance(kwargs, dict):
+        raise ValueError(f"residual: kwargs must be a mapping of the baseline's keyword arguments, got {kwargs!r}")
+    return {"baseline": name, "scale": float(scale), "kwargs": dict(kwargs)}
+
+
+def residual_action(controller, obs, residual, scale: float) -> np.ndarray:
+    """clip(controller(obs) + scale * residual, -1, 1) as float32; obs (D,) or (W, D)."""
+    base = controller.act(obs).astype(np.float64)
+    r = np.asarray(residual, dtype=np.float64)
+    return np.clip(base + scale * r, -1.0, 1.0).astype(np.float32)
+
+
+def residual_vec_env(venv, spec):
+    """``venv`` (an SB3 VecEnv on the batched core) with each step's actions
+    added to the baseline's (see the module docstring); ``venv`` itself when
+    ``spec`` is None."""
+    from stable_baselines3.common.vec_env import VecEnvWrapper
+
+    from .baselines import make_baseline
+
+    spec = check_residual(spec)
+    if spec is None:
+        return venv
+
+    class ResidualVecEnv(VecEnvWrapper):
+        """Actions are residuals on ``controller``; observations pass unchanged."""
+
+        def __init__(self, inner):
+            super().__init__(inner)
+            self.controller = make_baseline(spec["baseline"], inner, **spec["kwargs"])
+            self.scale = spec["scale"]
+            self._last_obs = None
+
+        def reset(self):
+            self._last_obs = self.venv.reset()
+            return self._last_obs
+
+        def step_async(self, actions):
+            if self._last_obs is None:
+                raise RuntimeError("step_async() called before reset()")
+            residual = np.asarray(actions, dtype=np.float64)
+            if residual.shape != (self.num_envs, self.action_space.shape[0]) or not np.all(np.isfinite(residual)):
+                raise ValueError(f"residual actions must be finite with shape "
+                                 f"{(self.num_envs, self.action_space.shape[0])}, got shape {residual.shape}")
+            self.venv.step_async(residual_action(self.controller, self._last_obs, residual, self.scale))
+
+        def step_wait(self):
+            obs, rewards, dones, infos = self.venv.step_wait()
+            self._last_obs = obs  # after an automatic reset: the new episode's first observation
+            return obs, rewards, dones, infos
+
+    return ResidualVecEnv(venv)
+
+
+if gym is not None:
+
+    class ResidualAction(gym.Wrapper):
+        """A single Ragdoll env whose action is a residual on a baseline
+        controller (``spec`` as :func:`check_residual`)."""
+
+        def __init__(self, env, spec):
+            from .baselines import make_baseline
+
+            super().__init__(env)
+            spec = check_residual(spec)
+            if spec is None:
+                raise ValueError("ResidualAction needs a residual spec, got None")
+            self.controller = make_baseline(spec["baseline"], env, **spec["kwargs"])
+            self.scale = spec["scale"]
+            self._last_obs = None
+
+        def reset(self, **kwargs):
+            obs, info = self.env.reset(**kwargs)
+            self._last_obs = obs
+            return obs, info
+
+        def step(self, action):
+            if self._last_obs is None:
+                raise RuntimeError("step() called before reset()")
+            residual = np.asarray(action, dtype=np.float64)
+            if residual.shape != self.action_space.shape or not np.all(np.isfinite(residual)):
+                raise ValueError(f"residual action must be finite with shape {self.action_space.shape}, "
+                                 f"got shape {residual.shape}")
+            out = self.env.step(residual_action(self.controller, self._last_obs, residual, self.scale))
+            self._last_obs = out[0]
+            return out
