@@ -31,8 +31,13 @@ Reward terms (``info``), paid while healthy except the control cost:
 ``reward_survive`` = alive_bonus (1);
 ``reward_upright`` = upright_weight (0.5) x the z component of the chest's up axis (clipped to [0, 1]);
 ``reward_height`` = height_weight (0.5) x head height / standing head height (clipped to [0, 1]);
+``reward_capture`` = capture_weight (1) x exp(-(d / capture_scale)²), d the horizontal distance (m)
+from the capture point ξ = c + ċ / ω (c, ċ the centre of mass and its velocity, ω = √(g / c_z);
+Pratt et al. 2006, "Capture point: a step toward humanoid push recovery") to the midpoint of the
+feet, capture_scale 0.1 m: 1 with the body balanced over its feet, falling off as a push or a lean
+carries the point the body would have to step to away from them (the standing pose: 0.6);
 ``reward_ctrl`` = -ctrl_cost_weight (0.1) x mean(a²).
-At most 2 per step: 1200 over the registered 20 s (600 steps).
+At most 3 per step: 1800 over the registered 20 s (600 steps).
 
 Pushes (core keyword arguments): ``push_strength`` (5, 20) N·s, every
 ``push_interval`` (2, 4) s, at the centre of one of ``push_bodies``
@@ -98,6 +103,8 @@ class BalanceTask(Task):
         "alive_bonus": (1.0, nonneg),
         "upright_weight": (0.5, nonneg),
         "height_weight": (0.5, nonneg),
+        "capture_weight": (1.0, nonneg),
+        "capture_scale": (0.1, positive),
         "ctrl_cost_weight": (0.1, nonneg),
     }
     dt = 1.0 / 60.0
@@ -222,23 +229,36 @@ class BalanceTask(Task):
         up = math3d.quat_rotate(state.orientation[:, self.chest], np.broadcast_to(_EZ, (state.num_worlds, 3)))
         upright = np.clip(up[:, 2], 0.0, 1.0)
         tall = np.clip(head_z / self.standing_head_height, 0.0, 1.0)
+        com, com_vel = self.com(model, state)
+        feet_mid = 0.5 * (state.position[:, self.feet[0]] + state.position[:, self.feet[1]])
+        d = com[:, :2] - feet_mid[:, :2]
+        xi = self.capture_offset(model, com, com_vel, feet_mid)
+        capture = np.exp(-(xi[:, 0] ** 2 + xi[:, 1] ** 2) / self.capture_scale ** 2)
         terms = {
             "reward_survive": self.alive_bonus * healthy,
             "reward_upright": self.upright_weight * upright * healthy,
             "reward_height": self.height_weight * tall * healthy,
+            "reward_capture": self.capture_weight * capture * healthy,
             "reward_ctrl": -ctrl_cost(self.ctrl_cost_weight, action),
         }
-        com, _ = self.com(model, state)
-        feet_mid = 0.5 * (state.position[:, self.feet[0]] + state.position[:, self.feet[1]])
-        d = com[:, :2] - feet_mid[:, :2]
         info = {
             "pelvis_height": pelvis_z,
             "head_height": head_z,
             "com_offset": np.sqrt(d[:, 0] ** 2 + d[:, 1] ** 2),
+            "capture_offset": np.sqrt(xi[:, 0] ** 2 + xi[:, 1] ** 2),
             "foot_contacts": touching[:, self.feet],
             "other_contact": bad_contact,
         }
         return healthy, terms, info
+
+    @staticmethod
+    def capture_offset(model, com, com_vel, feet_mid):
+        """(W, 2) horizontal capture point minus the feet midpoint, m: c + ċ/ω,
+        ω = √(g / height of c above the feet) (linear inverted pendulum)."""
+        g = 9.81 if model.gravity is None else float(np.linalg.norm(model.gravity))
+        h = np.maximum(com[:, 2] - feet_mid[:, 2], 0.05)
+        omega = np.sqrt(g / h)
+        return com[:, :2] - feet_mid[:, :2] + com_vel[:, :2] / omega[:, None]
 
     def camera_target(self, model, state):
         com, _ = self.com(model, state)
@@ -247,4 +267,4 @@ class BalanceTask(Task):
 
     @property
     def max_reward_per_step(self):
-        return self.alive_bonus + self.upright_weight + self.height_weight
+        return self.alive_bonus + self.upright_weight + self.height_weight + self.capture_weight

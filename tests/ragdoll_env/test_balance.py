@@ -75,7 +75,35 @@ def test_standing_reward_terms():
     assert info["reward_survive"] == 1.0 and info["reward_ctrl"] == 0.0
     assert info["reward_upright"] == pytest.approx(0.5, abs=1e-3)
     assert info["reward_height"] == pytest.approx(0.5, abs=0.01)
-    assert r <= env.unwrapped.task.max_reward_per_step
+    # the standing pose keeps its centre of mass 7 cm behind the foot centres, at rest
+    assert info["capture_offset"] == pytest.approx(0.07, abs=0.01)
+    assert info["reward_capture"] == pytest.approx(np.exp(-(info["capture_offset"] / 0.1) ** 2), rel=1e-9)
+    assert r == pytest.approx(sum(v for k, v in info.items() if k.startswith("reward_")), rel=1e-12)
+    assert r <= env.unwrapped.task.max_reward_per_step == 3.0
+
+
+def test_capture_point_leads_the_centre_of_mass_by_its_velocity_over_omega():
+    """ξ = c + ċ/ω with ω = √(g/h): a body moving at 0.3 m/s with its centre
+    of mass 0.9 m above the feet has its capture point 0.3/√(9.81/0.9) m ahead."""
+    env = make("Ragdoll/Balance-v0", reset_noise_scale=0.0)
+    env.reset(seed=0)
+    task, model = env.unwrapped.task, env.unwrapped.model
+    com = np.array([[0.02, -0.01, 0.9]])
+    xi = task.capture_offset(model, com, np.array([[0.3, 0.0, 0.0]]), np.zeros((1, 3)))
+    g = np.linalg.norm(model.gravity)
+    assert g == pytest.approx(9.81, abs=0.01)
+    assert xi[0, 0] == pytest.approx(0.02 + 0.3 / np.sqrt(g / 0.9), rel=1e-9)
+    assert xi[0, 1] == pytest.approx(-0.01, rel=1e-9)
+
+
+def test_a_push_lowers_the_capture_reward():
+    env = make("Ragdoll/Balance-v0", reset_noise_scale=0.0)
+    env.reset(seed=0)
+    _, _, _, _, before = env.step(np.zeros(31, dtype=np.float32))
+    env.unwrapped.push([-20.0, 0.0, 0.0], body="pelvis")  # 0.27 m/s backwards: ξ moves ~8 cm back
+    _, _, _, _, after = env.step(np.zeros(31, dtype=np.float32))
+    assert after["capture_offset"] > before["capture_offset"] + 0.05
+    assert after["reward_capture"] < before["reward_capture"]
 
 
 def test_low_pelvis_or_head_is_unhealthy():
