@@ -112,3 +112,67 @@ def test_corrupted_checkpoint_is_a_clear_error(tiny_run, tmp_path):
     (run / "vecnormalize.pkl").write_bytes(b"garbage")
     with pytest.raises(common.TrainingError, match="corrupted"):
         common.load_vecnormalize(run / "vecnormalize.pkl", None)
+
+
+def test_residual_run_trains_and_evaluates_on_its_baseline(tmp_path, tiny_config):
+    """A run whose config adds the policy to the LQR: the evaluation acts the
+    same way, so a policy near zero keeps the pole up as the LQR does."""
+    cfg = json.loads(tiny_config.read_text())
+    cfg["residual"] = {"baseline": "lqr", "scale": 0.2}
+    cfg["ppo"] = {**cfg["ppo"], "policy_kwargs": {"log_std_init": -3.0}}
+    path = tmp_path / "residual.json"
+    path.write_text(json.dumps(cfg))
+    run = tmp_path / "residual"
+    train.main([ENV, "--timesteps", "256", "--num-envs", "4", "--seed", "0", "--out", str(run),
+                "--config", str(path), "--no-progress-bar"])
+    assert json.loads((run / "config.json").read_text())["config"]["residual"]["baseline"] == "lqr"
+    out = tmp_path / "eval.json"
+    evaluate.main([str(run), "--episodes", "2", "--json", str(out), "--no-baselines"])
+    res = json.loads(out.read_text())
+    assert res["residual"] == {"baseline": "lqr", "scale": 0.2}
+    assert res["fall_rate"] == 0.0 and res["mean_length"] == 50
+
+
+def test_bad_residual_config_is_a_clear_error(tmp_path):
+    path = tmp_path / "bad.json"
+    path.write_text(json.dumps({"residual": {"baseline": "mpc"}}))
+    with pytest.raises(SystemExit) as exc:
+        train.main([ENV, "--timesteps", "64", "--out", str(tmp_path / "x"), "--config", str(path),
+                    "--no-progress-bar"])
+    assert "baseline must be one of" in str(exc.value.code)
+
+
+def test_push_sweep_rows_for_agent_and_baselines(tmp_path):
+    """A tiny residual Balance run: the sweep rolls the agent and the PD out
+    at each strength, counting the pushes it gave."""
+    from training import push_sweep
+
+    cfg = {"env_kwargs": {"max_episode_steps": 90, "push_interval": [0.5, 0.5]},
+           "ppo": {"n_steps": 32, "batch_size": 64, "n_epochs": 1},
+           "eval": {"freq": 10_000, "episodes": 1, "num_envs": 1}, "checkpoint_freq": 10_000}
+    path = tmp_path / "bal.json"
+    path.write_text(json.dumps(cfg))
+    run = tmp_path / "bal"
+    train.main(["Ragdoll/Balance-v0", "--timesteps", "64", "--num-envs", "2", "--seed", "0", "--out", str(run),
+                "--config", str(path), "--no-progress-bar"])
+    out, png = tmp_path / "sweep.json", tmp_path / "sweep.png"
+    res = push_sweep.main([str(run), "--strengths", "0", "15", "--episodes", "2", "--baselines", "standing_pd",
+                           "--json", str(out), "--plot", str(png)])
+    assert json.loads(out.read_text())["rows"] == res["rows"] and png.stat().st_size > 1000
+    assert [(r["strength"], r["controller"]) for r in res["rows"]] == [
+        (0.0, "agent"), (0.0, "standing_pd"), (15.0, "agent"), (15.0, "standing_pd")]
+    for r in res["rows"]:
+        assert r["episodes"] == 2 and 0.0 <= r["fall_rate"] <= 1.0
+        assert r["mean_length_s"] == pytest.approx(r["mean_length"] / 30)
+        if r["strength"] == 0:
+            assert r["pushes"] == 0
+        else:  # a push every 0.5 s: at least one before the 3 s limit or a fall
+            assert r["pushes"] >= 2 and 0 <= r["pushes_survived"] <= r["pushes"]
+    assert res["residual"]["baseline"] == "standing_pd"
+
+
+def test_push_sweep_needs_a_balance_run(tiny_run):
+    from training import push_sweep
+
+    with pytest.raises(SystemExit, match="needs a Ragdoll/Balance-v0 run"):
+        push_sweep.main([str(tiny_run), "--episodes", "1"])

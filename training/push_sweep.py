@@ -1,0 +1,146 @@
+"""Push-strength sweep: how hard a push a trained Balance policy survives,
+beside the standing PD baseline.
+
+    python -m training.push_sweep runs/Balance-v0-1 --strengths 0 10 20 30 40 --episodes 20 \\
+        --json docs/push_sweep.json --plot docs/push_sweep.png
+
+For each strength s (N·s) every push of the episode has exactly that impulse
+(``push_strength=(s, s)``; 0 disables pushes), at the run's push interval
+unless ``--push-interval`` is given. The agent (the run's evaluation model,
+with its residual baseline if it has one) and the baselines roll out the same
+seeds. Reported per strength and controller: fall rate (episodes ended by a
+fall before the time limit), mean episode length (s), and pushes survived /
+pushes (a push is survived when the body is still standing
+``push_recovery_time`` after it).
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+from . import common as C
+from .evaluate import _make_venv, load_agent, rollout
+
+BASELINES = ("standing_pd", "zero")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="python -m training.push_sweep", description=__doc__.split("\n\n")[0],
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("run_dir", metavar="RUN_DIR", help="a Ragdoll/Balance-v0 run written by python -m training.train")
+    p.add_argument("--strengths", type=float, nargs="+", default=[0.0, 10.0, 20.0, 30.0, 40.0],
+                   help="push impulses to sweep, N·s (default 0 10 20 30 40)")
+    p.add_argument("--episodes", type=int, default=20, help="episodes per strength and controller (default 20)")
+    p.add_argument("--push-interval", type=float, nargs=2, metavar=("LO", "HI"), default=None,
+                   help="seconds between pushes (default: the run's)")
+    p.add_argument("--baselines", nargs="*", default=list(BASELINES), choices=BASELINES,
+                   help="baselines beside the agent (default: standing_pd zero)")
+    p.add_argument("--seed", type=int, default=12345, help="seed of the evaluation worlds (default 12345)")
+    p.add_argument("--num-envs", type=int, default=10, help="worlds stepped together (default 10)")
+    p.add_argument("--stochastic", dest="deterministic", action="store_false",
+                   help="sample the policy's actions (default: its mean action)")
+    p.add_argument("--json", metavar="PATH", default=None, help="write the rows as JSON here")
+    p.add_argument("--plot", metavar="PNG", default=None, help="plot fall rate against strength (matplotlib)")
+    p.add_argument("--threads", type=int, default=1, help="torch CPU threads (default 1)")
+    return p
+
+
+def sweep(args) -> dict:
+    import torch
+
+    from ragdoll_env.baselines import make_baseline
+
+    torch.set_num_threads(max(int(args.threads), 1))
+    if args.episodes < 1:
+        raise C.TrainingError("--episodes must be >= 1")
+    if any(s < 0 for s in args.strengths):
+        raise C.TrainingError(f"--strengths must be >= 0 N·s, got {args.strengths}")
+    t0 = time.time()
+    run = C.require_run_dir(args.run_dir)
+    saved = C.read_run_config(run)
+    env_id = saved["env_id"]
+    if env_id != "Ragdoll/Balance-v0":
+        raise C.TrainingError(f"{str(run)!r} is a run of {env_id}; the push sweep needs a Ragdoll/Balance-v0 run")
+    base_kwargs = dict(saved["config"].get("env_kwargs") or {})
+    if args.push_interval is not None:
+        base_kwargs["push_interval"] = tuple(args.push_interval)
+    num_envs = max(1, min(args.num_envs, args.episodes))
+    rows, model_label, model_steps = [], None, None
+    for s in args.strengths:
+        env_kwargs = {**base_kwargs, "push_strength": (s, s) if s > 0 else 0.0}
+        agent = load_agent(run, saved, num_envs, args.seed, env_kwargs)
+        model_label, model_steps = agent.label, int(agent.model.num_timesteps)
+        results = {"agent": rollout(agent.env, lambda obs: agent.act(obs, args.deterministic), args.episodes)}
+        agent.env.close()
+        for name in args.baselines:
+            venv = _make_venv(env_id, num_envs, args.seed, env_kwargs)
+            results[name] = rollout(venv, make_baseline(name, venv).act, args.episodes)
+            venv.close()
+        dt = agent.venv.core.dt  # s per env step
+        for name, r in results.items():
+            rows.append({
+                "strength": s,
+                "controller": name,
+                "episodes": r["episodes"],
+                "fall_rate": r["fall_rate"],
+                "mean_length": r["mean_length"],
+                "mean_length_s": r["mean_length"] * dt,
+                "pushes": r.get("mean_pushes", 0.0) * r["episodes"],
+                "pushes_survived": r.get("mean_pushes_survived", 0.0) * r["episodes"],
+                "mean_return": r["mean_return"],
+            })
+        print_rows([x for x in rows if x["strength"] == s], header=(s == args.strengths[0]))
+    result = {"run_dir": str(run), "env_id": env_id, "model": model_label, "model_timesteps": model_steps,
+              "episodes": args.episodes, "seed": args.seed, "deterministic": bool(args.deterministic),
+              "push_interval": base_kwargs.get("push_interval"), "residual": saved["config"].get("residual"),
+              "rows": rows, "wall_time_s": round(time.time() - t0, 3)}
+    if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        C.write_json(args.json, result)
+    if args.plot:
+        plot_sweep(result, args.plot)
+    return result
+
+
+def print_rows(rows, header=True) -> None:
+    if header:
+        print(f"{'N·s':>6}  {'controller':<12}{'fall rate':>10}{'mean len (s)':>14}{'pushes survived':>17}")
+    for r in rows:
+        length = f"{r['mean_length_s']:.1f}"
+        pushes = f"{r['pushes_survived']:.0f}/{r['pushes']:.0f}" if r["pushes"] else "-"
+        print(f"{r['strength']:>6.1f}  {r['controller']:<12}{r['fall_rate']:>10.2f}{length:>14}{pushes:>17}", flush=True)
+
+
+def plot_sweep(result, path) -> Path:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 3.5), dpi=110)
+    for name in dict.fromkeys(r["controller"] for r in result["rows"]):
+        pts = [(r["strength"], r["fall_rate"]) for r in result["rows"] if r["controller"] == name]
+        ax.plot(*zip(*pts), marker="o", label=name)
+    ax.set_xlabel("push impulse (N·s), every push of the episode")
+    ax.set_ylabel(f"fall rate over {result['episodes']} × 20 s")
+    ax.set_ylim(-0.03, 1.03)
+    ax.grid(alpha=0.3)
+    ax.legend()
+    ax.set_title(f"Balance-v0: {result['model']} ({result['model_timesteps']} steps)", fontsize=9)
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path)
+    plt.close(fig)
+    return path
+
+
+def main(argv=None):
+    args = build_parser().parse_args(argv)
+    return C.run_cli(lambda _: sweep(args))
+
+
+if __name__ == "__main__":
+    main()
