@@ -14,15 +14,15 @@ SOLVERS = ("soft_step", "thesis")
 JOINT_SOLVERS = ("tree", "gauss_seidel")
 
 #: Settings for accuracy over speed (``Settings(**ACCURATE)``): rigid tree
-#: joints with their limits inside the tree solve, at 8 substeps. Measured
+#: joints with their limits inside the tree solve, at 12 substeps. Measured
 #: (tests/engine/test_joints.py, benchmarks.accuracy; figures in the README):
-#: compound pendulum period within 0.003%, double pendulum energy within 0.8%
-#: over 20 s, humanoid in free fall under bang-bang maximum torques: anchor
-#: error about 2 mm and limits within 1.5-2.4°, at about twice the default's
-#: cost on the ragdoll; a ragdoll resting on
-#: the ground keeps moving at up to ~16 cm/s (the Gauss-Seidel contacts fight
-#: the rigid joints), so the defaults stay soft.
-ACCURATE = {"substeps": 8, "joint_hertz": math.inf, "joint_limits_in_tree": True}
+#: humanoid in free fall under bang-bang maximum torques for 10 s: anchor
+#: error under 1 mm and limits within 0.7° (at 8 substeps 2 mm and 1.5-2.4°:
+#: a light foot crosses its swing cone within a substep), at about three
+#: times the default's cost on the ragdoll; a ragdoll resting on the ground
+#: keeps moving at up to ~16 cm/s (the Gauss-Seidel contacts fight the rigid
+#: joints), so the defaults stay soft.
+ACCURATE = {"substeps": 12, "joint_hertz": math.inf, "joint_limits_in_tree": True}
 
 
 @dataclass(frozen=True)
