@@ -18,8 +18,11 @@ control cost of the summed action ``a``.
 * :class:`ResidualAction` wraps a single Gymnasium env (videos, the checkers).
 
 ``training.train`` builds them from a config's ``residual`` entry
-(``{"baseline": "standing_pd", "scale": 1.0}``) and ``training.evaluate``
-evaluates the policy the same way.
+(``{"baseline": "standing_pd", "scale": 1.0, "actuators": [...]}``) and
+``training.evaluate`` evaluates the policy the same way. ``actuators``
+(optional) names the joints the policy acts on, as substrings of the
+actuator names (``"hip"`` matches ``hip_l:twist``, ...): the action space
+shrinks to those, and the other joints follow the baseline alone.
 """
 
 from __future__ import annotations
@@ -41,9 +44,9 @@ def check_residual(spec) -> dict | None:
         return None
     if not isinstance(spec, dict):
         raise ValueError(f"residual must be a mapping {{'baseline': name, 'scale': s}} or null, got {spec!r}")
-    unknown = set(spec) - {"baseline", "scale", "kwargs"}
+    unknown = set(spec) - {"baseline", "scale", "kwargs", "actuators"}
     if unknown:
-        raise ValueError(f"residual: unknown keys {sorted(unknown)}; keys: baseline, scale, kwargs")
+        raise ValueError(f"residual: unknown keys {sorted(unknown)}; keys: baseline, scale, kwargs, actuators")
     name = spec.get("baseline")
     if name not in BASELINES or name == "zero":
         raise ValueError(f"residual: baseline must be one of {sorted(set(BASELINES) - {'zero'})}, got {name!r}")
@@ -53,14 +56,37 @@ def check_residual(spec) -> dict | None:
     kwargs = spec.get("kwargs") or {}
     if not isinstance(kwargs, dict):
         raise ValueError(f"residual: kwargs must be a mapping of the baseline's keyword arguments, got {kwargs!r}")
-    return {"baseline": name, "scale": float(scale), "kwargs": dict(kwargs)}
+    actuators = spec.get("actuators")
+    if actuators is not None and (isinstance(actuators, str) or not all(isinstance(a, str) for a in actuators)
+                                  or not len(actuators)):
+        raise ValueError(f"residual: actuators must be a non-empty list of name parts, got {actuators!r}")
+    out = {"baseline": name, "scale": float(scale), "kwargs": dict(kwargs)}
+    if actuators is not None:
+        out["actuators"] = list(actuators)
+    return out
 
 
-def residual_action(controller, obs, residual, scale: float) -> np.ndarray:
-    """clip(controller(obs) + scale * residual, -1, 1) as float32; obs (D,) or (W, D)."""
+def actuator_subset(names, parts) -> np.ndarray:
+    """Indices of the actuator ``names`` containing any of ``parts`` (all for
+    None), else ValueError naming a part that matches nothing."""
+    if parts is None:
+        return np.arange(len(names))
+    for part in parts:
+        if not any(part in n for n in names):
+            raise ValueError(f"residual: actuator part {part!r} matches none of {list(names)}")
+    return np.array([i for i, n in enumerate(names) if any(part in n for part in parts)], dtype=np.int64)
+
+
+def residual_action(controller, obs, residual, scale: float, subset=None) -> np.ndarray:
+    """clip(controller(obs) + scale * residual, -1, 1) as float32; obs (D,) or
+    (W, D); ``residual`` acts on the actuators ``subset`` (all for None)."""
     base = controller.act(obs).astype(np.float64)
     r = np.asarray(residual, dtype=np.float64)
-    return np.clip(base + scale * r, -1.0, 1.0).astype(np.float32)
+    if subset is not None:
+        base[..., subset] += scale * r
+    else:
+        base += scale * r
+    return np.clip(base, -1.0, 1.0).astype(np.float32)
 
 
 def residual_vec_env(venv, spec):
@@ -79,8 +105,12 @@ def residual_vec_env(venv, spec):
         """Actions are residuals on ``controller``; observations pass unchanged."""
 
         def __init__(self, inner):
-            super().__init__(inner)
-            self.controller = make_baseline(spec["baseline"], inner, **spec["kwargs"])
+            from gymnasium import spaces
+
+            controller = make_baseline(spec["baseline"], inner, **spec["kwargs"])
+            self.subset = actuator_subset(controller.core.actuator_names, spec.get("actuators"))
+            super().__init__(inner, action_space=spaces.Box(-1.0, 1.0, shape=(len(self.subset),), dtype=np.float32))
+            self.controller = controller
             self.scale = spec["scale"]
             self._last_obs = None
 
@@ -95,7 +125,7 @@ def residual_vec_env(venv, spec):
             if residual.shape != (self.num_envs, self.action_space.shape[0]) or not np.all(np.isfinite(residual)):
                 raise ValueError(f"residual actions must be finite with shape "
                                  f"{(self.num_envs, self.action_space.shape[0])}, got shape {residual.shape}")
-            self.venv.step_async(residual_action(self.controller, self._last_obs, residual, self.scale))
+            self.venv.step_async(residual_action(self.controller, self._last_obs, residual, self.scale, self.subset))
 
         def step_wait(self):
             obs, rewards, dones, infos = self.venv.step_wait()
@@ -114,11 +144,15 @@ if gym is not None:
         def __init__(self, env, spec):
             from .baselines import make_baseline
 
+            from gymnasium import spaces
+
             super().__init__(env)
             spec = check_residual(spec)
             if spec is None:
                 raise ValueError("ResidualAction needs a residual spec, got None")
             self.controller = make_baseline(spec["baseline"], env, **spec["kwargs"])
+            self.subset = actuator_subset(self.controller.core.actuator_names, spec.get("actuators"))
+            self.action_space = spaces.Box(-1.0, 1.0, shape=(len(self.subset),), dtype=np.float32)
             self.scale = spec["scale"]
             self._last_obs = None
 
@@ -134,6 +168,6 @@ if gym is not None:
             if residual.shape != self.action_space.shape or not np.all(np.isfinite(residual)):
                 raise ValueError(f"residual action must be finite with shape {self.action_space.shape}, "
                                  f"got shape {residual.shape}")
-            out = self.env.step(residual_action(self.controller, self._last_obs, residual, self.scale))
+            out = self.env.step(residual_action(self.controller, self._last_obs, residual, self.scale, self.subset))
             self._last_obs = out[0]
             return out

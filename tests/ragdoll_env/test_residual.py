@@ -60,7 +60,25 @@ def test_single_env_wrapper_matches_the_vector_wrapper():
         assert np.array_equal(obs, vobs[0])
 
 
+def test_actuator_subset_shrinks_the_action_space_and_leaves_the_rest_to_the_baseline():
+    spec = {**SPEC, "actuators": ["hip"]}
+    venv = residual_vec_env(make_sb3_vec_env(ENV, num_envs=2, seed=4), spec)
+    env = ResidualAction(gym.make(ENV), spec)
+    assert venv.action_space.shape == (1,) and env.action_space.shape == (1,)
+    obs = venv.reset()
+    lqr = venv.controller
+    a = residual_action(lqr, obs, np.array([[0.3], [-0.3]]), 0.5, venv.subset)
+    base = lqr.act(obs)
+    assert np.array_equal(a[:, 0], base[:, 0])  # the ankle: the LQR alone
+    assert np.allclose(a[:, 1], np.clip(base[:, 1] + np.array([0.15, -0.15]), -1, 1), atol=1e-7)
+    venv.step(np.zeros((2, 1)))
+    with pytest.raises(ValueError, match="matches none"):
+        residual_vec_env(make_sb3_vec_env(ENV, num_envs=1), {**SPEC, "actuators": ["knee"]})
+
+
 @pytest.mark.parametrize("spec, match", [
+    ({"baseline": "lqr", "actuators": "hip"}, "actuators must be a non-empty list"),
+    ({"baseline": "lqr", "actuators": []}, "actuators must be a non-empty list"),
     ({"baseline": "nope"}, "baseline must be one of"),
     ({"baseline": "zero"}, "baseline must be one of"),
     ({"baseline": "lqr", "scale": 0}, "scale must be a finite number > 0"),
