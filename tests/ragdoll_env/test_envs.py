@@ -230,7 +230,8 @@ def test_info_reports_reward_terms_for_each_task():
     keys = {
         "Ragdoll/InvertedPendulum-v0": {"reward_survive", "reward_ctrl"},
         "Ragdoll/InvertedDoublePendulum-v0": {"reward_survive", "reward_distance", "reward_velocity", "reward_ctrl"},
-        "Ragdoll/Balance-v0": {"reward_survive", "reward_upright", "reward_height", "reward_ctrl"},
+        "Ragdoll/Balance-v0": {"reward_survive", "reward_upright", "reward_height", "reward_capture",
+                               "reward_ctrl"},
     }
     for env_id, expected in keys.items():
         env = make(env_id)
