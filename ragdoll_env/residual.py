@@ -27,12 +27,8 @@ shrinks to those, and the other joints follow the baseline alone.
 
 from __future__ import annotations
 
+import gymnasium as gym
 import numpy as np
-
-try:  # gymnasium is a dependency of ragdoll_env; the SB3 wrapper imports SB3 lazily
-    import gymnasium as gym
-except ImportError:  # pragma: no cover
-    gym = None
 
 
 def check_residual(spec) -> dict | None:
@@ -57,8 +53,8 @@ def check_residual(spec) -> dict | None:
     if not isinstance(kwargs, dict):
         raise ValueError(f"residual: kwargs must be a mapping of the baseline's keyword arguments, got {kwargs!r}")
     actuators = spec.get("actuators")
-    if actuators is not None and (isinstance(actuators, str) or not all(isinstance(a, str) for a in actuators)
-                                  or not len(actuators)):
+    if actuators is not None and (not isinstance(actuators, (list, tuple)) or not actuators
+                                  or not all(isinstance(a, str) for a in actuators)):
         raise ValueError(f"residual: actuators must be a non-empty list of name parts, got {actuators!r}")
     out = {"baseline": name, "scale": float(scale), "kwargs": dict(kwargs)}
     if actuators is not None:
@@ -105,11 +101,9 @@ def residual_vec_env(venv, spec):
         """Actions are residuals on ``controller``; observations pass unchanged."""
 
         def __init__(self, inner):
-            from gymnasium import spaces
-
             controller = make_baseline(spec["baseline"], inner, **spec["kwargs"])
             self.subset = actuator_subset(controller.core.actuator_names, spec.get("actuators"))
-            super().__init__(inner, action_space=spaces.Box(-1.0, 1.0, shape=(len(self.subset),), dtype=np.float32))
+            super().__init__(inner, action_space=gym.spaces.Box(-1.0, 1.0, shape=(len(self.subset),), dtype=np.float32))
             self.controller = controller
             self.scale = spec["scale"]
             self._last_obs = None
@@ -135,39 +129,36 @@ def residual_vec_env(venv, spec):
     return ResidualVecEnv(venv)
 
 
-if gym is not None:
 
-    class ResidualAction(gym.Wrapper):
-        """A single Ragdoll env whose action is a residual on a baseline
-        controller (``spec`` as :func:`check_residual`)."""
+class ResidualAction(gym.Wrapper):
+    """A single Ragdoll env whose action is a residual on a baseline
+    controller (``spec`` as :func:`check_residual`)."""
 
-        def __init__(self, env, spec):
-            from .baselines import make_baseline
+    def __init__(self, env, spec):
+        from .baselines import make_baseline
 
-            from gymnasium import spaces
+        super().__init__(env)
+        spec = check_residual(spec)
+        if spec is None:
+            raise ValueError("ResidualAction needs a residual spec, got None")
+        self.controller = make_baseline(spec["baseline"], env, **spec["kwargs"])
+        self.subset = actuator_subset(self.controller.core.actuator_names, spec.get("actuators"))
+        self.action_space = gym.spaces.Box(-1.0, 1.0, shape=(len(self.subset),), dtype=np.float32)
+        self.scale = spec["scale"]
+        self._last_obs = None
 
-            super().__init__(env)
-            spec = check_residual(spec)
-            if spec is None:
-                raise ValueError("ResidualAction needs a residual spec, got None")
-            self.controller = make_baseline(spec["baseline"], env, **spec["kwargs"])
-            self.subset = actuator_subset(self.controller.core.actuator_names, spec.get("actuators"))
-            self.action_space = spaces.Box(-1.0, 1.0, shape=(len(self.subset),), dtype=np.float32)
-            self.scale = spec["scale"]
-            self._last_obs = None
+    def reset(self, **kwargs):
+        obs, info = self.env.reset(**kwargs)
+        self._last_obs = obs
+        return obs, info
 
-        def reset(self, **kwargs):
-            obs, info = self.env.reset(**kwargs)
-            self._last_obs = obs
-            return obs, info
-
-        def step(self, action):
-            if self._last_obs is None:
-                raise RuntimeError("step() called before reset()")
-            residual = np.asarray(action, dtype=np.float64)
-            if residual.shape != self.action_space.shape or not np.all(np.isfinite(residual)):
-                raise ValueError(f"residual action must be finite with shape {self.action_space.shape}, "
-                                 f"got shape {residual.shape}")
-            out = self.env.step(residual_action(self.controller, self._last_obs, residual, self.scale, self.subset))
-            self._last_obs = out[0]
-            return out
+    def step(self, action):
+        if self._last_obs is None:
+            raise RuntimeError("step() called before reset()")
+        residual = np.asarray(action, dtype=np.float64)
+        if residual.shape != self.action_space.shape or not np.all(np.isfinite(residual)):
+            raise ValueError(f"residual action must be finite with shape {self.action_space.shape}, "
+                             f"got shape {residual.shape}")
+        out = self.env.step(residual_action(self.controller, self._last_obs, residual, self.scale, self.subset))
+        self._last_obs = out[0]
+        return out
