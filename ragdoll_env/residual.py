@@ -103,7 +103,8 @@ def residual_vec_env(venv, spec):
         def __init__(self, inner):
             controller = make_baseline(spec["baseline"], inner, **spec["kwargs"])
             self.subset = actuator_subset(controller.core.actuator_names, spec.get("actuators"))
-            super().__init__(inner, action_space=gym.spaces.Box(-1.0, 1.0, shape=(len(self.subset),), dtype=np.float32))
+            space = gym.spaces.Box(-1.0, 1.0, shape=(len(self.subset),), dtype=np.float32)
+            super().__init__(inner, action_space=space)
             self.controller = controller
             self.scale = spec["scale"]
             self._last_obs = None
