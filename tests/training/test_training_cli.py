@@ -127,10 +127,12 @@ def test_residual_run_trains_and_evaluates_on_its_baseline(tmp_path, tiny_config
                 "--config", str(path), "--no-progress-bar"])
     assert json.loads((run / "config.json").read_text())["config"]["residual"]["baseline"] == "lqr"
     out = tmp_path / "eval.json"
-    evaluate.main([str(run), "--episodes", "2", "--json", str(out), "--no-baselines"])
+    evaluate.main([str(run), "--episodes", "2", "--json", str(out), "--no-baselines",
+                   "--video", str(tmp_path / "video")])
     res = json.loads(out.read_text())
     assert res["residual"] == {"baseline": "lqr", "scale": 0.2}
     assert res["fall_rate"] == 0.0 and res["mean_length"] == 50
+    assert "video_error" not in res and len(res["videos"]) == 1  # the single env acts the same way
 
 
 def test_bad_residual_config_is_a_clear_error(tmp_path):
