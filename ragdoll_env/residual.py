@@ -32,8 +32,11 @@ import numpy as np
 
 
 def check_residual(spec) -> dict | None:
-    """The validated residual settings ``{"baseline": name, "scale": s}`` of
-    a config entry (a dict, or None for no residual), else ValueError."""
+    """The validated residual settings of a config entry (a dict, or None for
+    no residual), else ValueError: ``baseline`` (a name of
+    ``ragdoll_env.baselines.BASELINES`` but "zero"), ``scale`` (> 0, default
+    1), ``kwargs`` (the baseline's keyword arguments, default none) and
+    ``actuators`` (name parts, optional)."""
     from .baselines import BASELINES
 
     if spec is None:
@@ -64,7 +67,8 @@ def check_residual(spec) -> dict | None:
 
 def actuator_subset(names, parts) -> np.ndarray:
     """Indices of the actuator ``names`` containing any of ``parts`` (all for
-    None), else ValueError naming a part that matches nothing."""
+    None), in the engine's actuator order (not the order of ``parts``), else
+    ValueError naming a part that matches nothing."""
     if parts is None:
         return np.arange(len(names))
     for part in parts:

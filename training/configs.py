@@ -8,10 +8,12 @@ Each entry has:
   uses names for ``activation_fn``: "tanh", "relu", "elu");
 * ``normalize``: keyword arguments of ``VecNormalize`` for the training env;
 * ``env_kwargs``: keyword arguments given to the environment (``gym.make``);
-* ``residual`` (optional): ``{"baseline": name, "scale": s}``: the policy's
-  action is added (times s) to a controller of ``ragdoll_env.baselines`` and
-  the sum clipped (:mod:`ragdoll_env.residual`); absent or null: the policy
-  acts alone;
+* ``residual`` (optional): ``{"baseline": name, "scale": s}``, optionally
+  with ``"kwargs"`` (the baseline's keyword arguments) and ``"actuators"``
+  (name parts: the policy acts on those joints only): the policy's action is
+  added (times s) to a controller of ``ragdoll_env.baselines`` and the sum
+  clipped (:mod:`ragdoll_env.residual`); absent or null: the policy acts
+  alone;
 * ``eval``: ``freq`` (timesteps between evaluations), ``episodes``,
   ``num_envs`` of the separate evaluation env;
 * ``checkpoint_freq``: timesteps between checkpoints.

@@ -11,7 +11,8 @@ with its residual baseline if it has one) and the baselines roll out the same
 seeds. Reported per strength and controller: fall rate (episodes ended by a
 fall before the time limit), mean episode length (s), and pushes survived /
 pushes (a push is survived when the body is still standing
-``push_recovery_time`` after it).
+``push_recovery_time`` after it; a push in the episode's last
+``push_recovery_time`` counts as not survived).
 """
 
 from __future__ import annotations
@@ -67,8 +68,9 @@ def sweep(args) -> dict:
     if args.push_interval is not None:
         base_kwargs["push_interval"] = tuple(args.push_interval)
     num_envs = max(1, min(args.num_envs, args.episodes))
-    rows, model_label, model_steps = [], None, None
-    for s in args.strengths:
+    strengths = list(dict.fromkeys(args.strengths))
+    rows, model_label, model_steps, episode_s = [], None, None, None
+    for s in strengths:
         env_kwargs = {**base_kwargs, "push_strength": (s, s) if s > 0 else 0.0}
         agent = load_agent(run, saved, num_envs, args.seed, env_kwargs)
         model_label, model_steps = agent.label, int(agent.model.num_timesteps)
@@ -79,6 +81,7 @@ def sweep(args) -> dict:
             results[name] = rollout(venv, make_baseline(name, venv).act, args.episodes)
             venv.close()
         dt = agent.venv.core.dt  # s per env step
+        episode_s = agent.venv.core.max_episode_steps * dt if agent.venv.core.max_episode_steps else None
         for name, r in results.items():
             rows.append({
                 "strength": s,
@@ -87,14 +90,15 @@ def sweep(args) -> dict:
                 "fall_rate": r["fall_rate"],
                 "mean_length": r["mean_length"],
                 "mean_length_s": r["mean_length"] * dt,
-                "pushes": r.get("mean_pushes", 0.0) * r["episodes"],
-                "pushes_survived": r.get("mean_pushes_survived", 0.0) * r["episodes"],
+                "pushes": round(r.get("mean_pushes", 0.0) * r["episodes"]),
+                "pushes_survived": round(r.get("mean_pushes_survived", 0.0) * r["episodes"]),
                 "mean_return": r["mean_return"],
             })
-        print_rows([x for x in rows if x["strength"] == s], header=(s == args.strengths[0]))
+        print_rows([x for x in rows if x["strength"] == s], header=(s == strengths[0]))
     result = {"run_dir": str(run), "env_id": env_id, "model": model_label, "model_timesteps": model_steps,
               "episodes": args.episodes, "seed": args.seed, "deterministic": bool(args.deterministic),
-              "push_interval": base_kwargs.get("push_interval"), "residual": saved["config"].get("residual"),
+              "episode_s": episode_s, "push_interval": base_kwargs.get("push_interval"),
+              "residual": saved["config"].get("residual"),
               "rows": rows, "wall_time_s": round(time.time() - t0, 3)}
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
@@ -124,7 +128,8 @@ def plot_sweep(result, path) -> Path:
         pts = [(r["strength"], r["fall_rate"]) for r in result["rows"] if r["controller"] == name]
         ax.plot(*zip(*pts), marker="o", label=name)
     ax.set_xlabel("push impulse (N·s), every push of the episode")
-    ax.set_ylabel(f"fall rate over {result['episodes']} × 20 s")
+    length = f" × {result['episode_s']:g} s" if result.get("episode_s") else " episodes"
+    ax.set_ylabel(f"fall rate over {result['episodes']}{length}")
     ax.set_ylim(-0.03, 1.03)
     ax.grid(alpha=0.3)
     ax.legend()

@@ -27,6 +27,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ragdoll_env.residual import check_residual
+
 from . import common as C
 from .configs import get_config, merge
 
@@ -180,6 +182,10 @@ def train(args) -> dict:
         cfg["checkpoint_freq"] = args.checkpoint_freq
     if num_envs < 1 or total < 1:
         raise C.TrainingError("--num-envs and --timesteps must be positive")
+    try:
+        check_residual(cfg.get("residual"))
+    except ValueError as exc:
+        raise C.TrainingError(f"bad residual settings in the config: {exc}") from exc
     cfg["num_envs"] = num_envs
     run.mkdir(parents=True, exist_ok=True)
     run_cfg = {"env_id": env_id, "seed": seed, "num_envs": num_envs, "timesteps": total, "config": cfg,

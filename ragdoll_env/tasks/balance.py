@@ -32,7 +32,8 @@ Reward terms (``info``), paid while healthy except the control cost:
 ``reward_upright`` = upright_weight (0.5) x the z component of the chest's up axis (clipped to [0, 1]);
 ``reward_height`` = height_weight (0.5) x head height / standing head height (clipped to [0, 1]);
 ``reward_capture`` = capture_weight (1) x exp(-(d / capture_scale)²), d the horizontal distance (m)
-from the capture point ξ = c + ċ / ω (c, ċ the centre of mass and its velocity, ω = √(g / c_z);
+from the capture point ξ = c + ċ / ω (c, ċ the centre of mass and its velocity, ω = √(g / h), h the
+height of c above the foot centres, at least 0.05 m;
 Pratt et al. 2006, "Capture point: a step toward humanoid push recovery") to the midpoint of the
 feet, capture_scale 0.1 m: 1 with the body balanced over its feet, falling off as a push or a lean
 carries the point the body would have to step to away from them (the standing pose: 0.6);
@@ -232,8 +233,8 @@ class BalanceTask(Task):
         com, com_vel = self.com(model, state)
         feet_mid = 0.5 * (state.position[:, self.feet[0]] + state.position[:, self.feet[1]])
         d = com[:, :2] - feet_mid[:, :2]
-        xi = self.capture_offset(model, com, com_vel, feet_mid)
-        capture = np.exp(-(xi[:, 0] ** 2 + xi[:, 1] ** 2) / self.capture_scale ** 2)
+        capture_rel = self.capture_offset(model, com, com_vel, feet_mid)  # ξ - feet midpoint
+        capture = np.exp(-(capture_rel[:, 0] ** 2 + capture_rel[:, 1] ** 2) / self.capture_scale ** 2)
         terms = {
             "reward_survive": self.alive_bonus * healthy,
             "reward_upright": self.upright_weight * upright * healthy,
@@ -245,7 +246,7 @@ class BalanceTask(Task):
             "pelvis_height": pelvis_z,
             "head_height": head_z,
             "com_offset": np.sqrt(d[:, 0] ** 2 + d[:, 1] ** 2),
-            "capture_offset": np.sqrt(xi[:, 0] ** 2 + xi[:, 1] ** 2),
+            "capture_offset": np.sqrt(capture_rel[:, 0] ** 2 + capture_rel[:, 1] ** 2),
             "foot_contacts": touching[:, self.feet],
             "other_contact": bad_contact,
         }

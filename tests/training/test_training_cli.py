@@ -142,6 +142,7 @@ def test_bad_residual_config_is_a_clear_error(tmp_path):
         train.main([ENV, "--timesteps", "64", "--out", str(tmp_path / "x"), "--config", str(path),
                     "--no-progress-bar"])
     assert "baseline must be one of" in str(exc.value.code)
+    assert not (tmp_path / "x").exists()  # checked before the run directory is made
 
 
 def test_push_sweep_rows_for_agent_and_baselines(tmp_path):
