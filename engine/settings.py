@@ -19,9 +19,10 @@ JOINT_SOLVERS = ("tree", "gauss_seidel")
 #: humanoid in free fall under bang-bang maximum torques for 10 s: anchor
 #: error under 1 mm and limits within 0.7° (at 8 substeps 2 mm and 1.5-2.4°:
 #: a light foot crosses its swing cone within a substep), at 2.7 times
-#: the default's cost on the ragdoll (4.7 vs 1.7 wall s per simulated s); a ragdoll dropped on the ground
-#: still moves at up to 2 cm/s 3-5 s later (the Gauss-Seidel contacts fight
-#: the rigid joints; the defaults: under 1 cm/s), so the defaults stay soft.
+#: the default's cost on the ragdoll (4.7 vs 1.7 wall s per simulated s);
+#: a ragdoll dropped on the ground still moves at up to 2 cm/s 3-5 s later
+#: (the Gauss-Seidel contacts fight the rigid joints; the defaults: under
+#: 1 cm/s), so the defaults stay soft.
 ACCURATE = {"substeps": 12, "joint_hertz": math.inf, "joint_limits_in_tree": True}
 
 

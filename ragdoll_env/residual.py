@@ -30,6 +30,8 @@ from __future__ import annotations
 import gymnasium as gym
 import numpy as np
 
+from .batched import check_action
+
 
 def check_residual(spec) -> dict | None:
     """The validated residual settings of a config entry (a dict, or None for
@@ -89,13 +91,22 @@ def residual_action(controller, obs, residual, scale: float, subset=None) -> np.
     return np.clip(base, -1.0, 1.0).astype(np.float32)
 
 
+def _residual_parts(env, spec):
+    """(baseline controller, actuator subset, the policy's action space,
+    scale) of a validated ``spec`` on ``env`` (any env the baselines accept)."""
+    from .baselines import make_baseline
+
+    controller = make_baseline(spec["baseline"], env, **spec["kwargs"])
+    subset = actuator_subset(controller.core.actuator_names, spec.get("actuators"))
+    space = gym.spaces.Box(-1.0, 1.0, shape=(len(subset),), dtype=np.float32)
+    return controller, subset, space, spec["scale"]
+
+
 def residual_vec_env(venv, spec):
     """``venv`` (an SB3 VecEnv on the batched core) with each step's actions
     added to the baseline's (see the module docstring); ``venv`` itself when
     ``spec`` is None."""
     from stable_baselines3.common.vec_env import VecEnvWrapper
-
-    from .baselines import make_baseline
 
     spec = check_residual(spec)
     if spec is None:
@@ -105,12 +116,9 @@ def residual_vec_env(venv, spec):
         """Actions are residuals on ``controller``; observations pass unchanged."""
 
         def __init__(self, inner):
-            controller = make_baseline(spec["baseline"], inner, **spec["kwargs"])
-            self.subset = actuator_subset(controller.core.actuator_names, spec.get("actuators"))
-            space = gym.spaces.Box(-1.0, 1.0, shape=(len(self.subset),), dtype=np.float32)
+            controller, subset, space, scale = _residual_parts(inner, spec)
             super().__init__(inner, action_space=space)
-            self.controller = controller
-            self.scale = spec["scale"]
+            self.controller, self.subset, self.scale = controller, subset, scale
             self._last_obs = None
 
         def reset(self):
@@ -120,10 +128,7 @@ def residual_vec_env(venv, spec):
         def step_async(self, actions):
             if self._last_obs is None:
                 raise RuntimeError("step_async() called before reset()")
-            residual = np.asarray(actions, dtype=np.float64)
-            if residual.shape != (self.num_envs, self.action_space.shape[0]) or not np.all(np.isfinite(residual)):
-                raise ValueError(f"residual actions must be finite with shape "
-                                 f"{(self.num_envs, self.action_space.shape[0])}, got shape {residual.shape}")
+            residual = check_action(actions, (self.num_envs, len(self.subset)))
             self.venv.step_async(residual_action(self.controller, self._last_obs, residual, self.scale, self.subset))
 
         def step_wait(self):
@@ -134,22 +139,16 @@ def residual_vec_env(venv, spec):
     return ResidualVecEnv(venv)
 
 
-
 class ResidualAction(gym.Wrapper):
     """A single Ragdoll env whose action is a residual on a baseline
     controller (``spec`` as :func:`check_residual`)."""
 
     def __init__(self, env, spec):
-        from .baselines import make_baseline
-
         super().__init__(env)
         spec = check_residual(spec)
         if spec is None:
             raise ValueError("ResidualAction needs a residual spec, got None")
-        self.controller = make_baseline(spec["baseline"], env, **spec["kwargs"])
-        self.subset = actuator_subset(self.controller.core.actuator_names, spec.get("actuators"))
-        self.action_space = gym.spaces.Box(-1.0, 1.0, shape=(len(self.subset),), dtype=np.float32)
-        self.scale = spec["scale"]
+        self.controller, self.subset, self.action_space, self.scale = _residual_parts(env, spec)
         self._last_obs = None
 
     def reset(self, **kwargs):
@@ -160,10 +159,7 @@ class ResidualAction(gym.Wrapper):
     def step(self, action):
         if self._last_obs is None:
             raise RuntimeError("step() called before reset()")
-        residual = np.asarray(action, dtype=np.float64)
-        if residual.shape != self.action_space.shape or not np.all(np.isfinite(residual)):
-            raise ValueError(f"residual action must be finite with shape {self.action_space.shape}, "
-                             f"got shape {residual.shape}")
+        residual = check_action(action, self.action_space.shape)
         out = self.env.step(residual_action(self.controller, self._last_obs, residual, self.scale, self.subset))
         self._last_obs = out[0]
         return out

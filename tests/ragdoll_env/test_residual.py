@@ -95,12 +95,12 @@ def test_bad_residual_actions_raise_before_stepping():
     venv = residual_vec_env(make_sb3_vec_env(ENV, num_envs=2, seed=0), SPEC)
     venv.reset()
     before = venv.venv.core.state.position.copy()
-    with pytest.raises(ValueError, match="finite with shape"):
+    with pytest.raises(ValueError, match=r"NaN or infinite entry at index \(0, 0\)"):
         venv.step(np.array([[np.nan, 0.0], [0.0, 0.0]]))
-    with pytest.raises(ValueError, match="finite with shape"):
+    with pytest.raises(ValueError, match=r"must have shape \(2, 2\), got \(2, 3\)"):
         venv.step(np.zeros((2, 3)))
     assert np.array_equal(venv.venv.core.state.position, before)
     env = ResidualAction(gym.make(ENV), SPEC)
     env.reset(seed=0)
-    with pytest.raises(ValueError, match="finite with shape"):
+    with pytest.raises(ValueError, match=r"NaN or infinite entry at index \(0,\)"):
         env.step(np.array([np.inf, 0.0]))
