@@ -1,4 +1,5 @@
 """ragdoll's physics engine: batched rigid bodies, joints and contacts on numpy."""
+from .allocator import keep_freed_memory
 from .builder import WORLD, SceneBuilder, STANDARD_GRAVITY, GRAVITATIONAL_CONSTANT
 from .control import Control, apply_impulse
 from .errors import SceneError, SimulationError
@@ -8,3 +9,5 @@ from .settings import ACCURATE, Settings
 from .shapes import Box, Capsule, Plane, Sphere
 from .state import Event, State
 from .step import simulate, step
+
+keep_freed_memory()
