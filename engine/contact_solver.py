@@ -98,6 +98,9 @@ class ContactRows:
         self.w, self.p = w, p
         self.ka, self.kb = w * N + a, w * N + b
         self.dyn_a, self.dyn_b = model.dynamic[a], model.dynamic[b]
+        # Rows whose body a is static (ground contacts) get exact zero changes
+        # on that side, and _scatter writes back only dynamic bodies.
+        self.a_moves = bool(self.dyn_a.any())
         self.inv_ma, self.inv_mb = model.inv_mass[a], model.inv_mass[b]
         self.n = normal
         self.t1, self.t2 = _tangents(normal)
@@ -180,9 +183,10 @@ class ContactRows:
     def _apply(self, rows, j, P, va, wa, vb, wb):
         """Impulse P (R, 3) at point j: -P on a, +P on b."""
         ra, rb = self.ra[rows, j], self.rb[rows, j]
-        va = va - P * self.inv_ma[rows][:, None]
+        if self.a_moves:
+            va = va - P * self.inv_ma[rows][:, None]
+            wa = wa - mat_vec(self.ia[rows, 0], cross(ra, P))
         vb = vb + P * self.inv_mb[rows][:, None]
-        wa = wa - mat_vec(self.ia[rows, 0], cross(ra, P))
         wb = wb + mat_vec(self.ib[rows, 0], cross(rb, P))
         return va, wa, vb, wb
 

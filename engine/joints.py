@@ -26,8 +26,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from .coloring import color_pairs
-from .math3d import (sym3_inverse, clamp_norm, cross, quat_rotate_inv, dot, mat_vec, quat_conj, quat_mul, quat_rotate, skew, sym3_solve,
-                     world_inv_inertia)
+from .math3d import (sym3_inverse, clamp_norm, cross, quat_rotate_inv, dot, mat_vec, quat_conj, quat_mul, quat_rotate, sym3_solve,
+                     quat_to_matrix, world_inv_inertia)
 from .soft import implicit_spring_impulse, make_soft
 from .state import Event
 
@@ -162,6 +162,10 @@ class JointSet:
         where_passive = {int(j): i for i, j in enumerate(self.passive_joints)}
         for color in self.colors:
             color["passive_pos"] = np.array([where_passive[int(j)] for j in color["passive"]], dtype=np.int64)
+            # Axes a passive joint's spring acts on (hinge: x; ball: x, y, z; fixed: none), 1.0/0.0.
+            kp = self.kind[color["passive"]]
+            n_axes = 1 if (kp == HINGE).all() else 3
+            color["passive_use"] = [(((kp == BALL) | (k == 0)) & (kp != FIXED)).astype(float) for k in range(n_axes)]
             color["twist_pos"] = np.array([where[int(j)] for j in color["twist_limit"]], dtype=np.int64)
             color["swing_pos"] = np.array([where[int(j)] for j in color["swing_limit"]], dtype=np.int64)
         self.effect_names = {"joints"}
@@ -176,6 +180,7 @@ class JointSet:
         self._all = np.arange(J)
         self._frames_on = False  # frames of _frames_state cached between begin_step and end_step
         self._frames = self._frames_state = None
+        self._limits = self._swing_twist = None  # of every joint, cached with the frames
 
     # ------------------------------------------------------------------ state
     def initial_arrays(self, W):
@@ -202,7 +207,28 @@ class JointSet:
 
     def positions_moved(self):
         """The bodies moved: frames cached within the step are stale."""
-        self._frames = None
+        self._frames = self._limits = self._swing_twist = None
+
+    def limit_geometry(self, state, idx):
+        """``_limit_rows`` of joints ``idx``; within a step computed once for
+        every joint per set of positions (with the frames) and sliced here."""
+        if self._frames_on and state is self._frames_state:
+            if self._limits is None:
+                _, _, fpw, fcw, _, _ = self.frames(state, self._all)
+                self._limits = self._limit_rows(self._all, fpw, fcw, self.relative_swing_twist(state, self._all))
+            return tuple(x[:, idx] for x in self._limits)
+        _, _, fpw, fcw, _, _ = self.frames(state, idx)
+        return self._limit_rows(idx, fpw, fcw)
+
+    def relative_swing_twist(self, state, idx):
+        """``swing_twist`` of each joint's relative rotation, cached like the frames."""
+        if self._frames_on and state is self._frames_state:
+            if self._swing_twist is None:
+                _, _, fpw, fcw, _, _ = self.frames(state, self._all)
+                self._swing_twist = swing_twist(quat_mul(quat_conj(fpw), fcw))
+            return tuple(x[:, idx] for x in self._swing_twist)
+        _, _, fpw, fcw, _, _ = self.frames(state, idx)
+        return swing_twist(quat_mul(quat_conj(fpw), fcw))
 
     def _compute_frames(self, state, idx):
         a, b = self.parent[idx], self.child[idx]
@@ -217,8 +243,7 @@ class JointSet:
         """Joint angles (W, J, 3) in radians: hinge (θ, 0, 0); ball (twist,
         swing_y, swing_z) with the swing vector φ·d; fixed zeros."""
         idx = np.arange(len(self.names)) if idx is None else idx
-        _, _, fpw, fcw, _, _ = self.frames(state, idx)
-        twist, phi, dy, dz = swing_twist(quat_mul(quat_conj(fpw), fcw))
+        twist, phi, dy, dz = self.relative_swing_twist(state, idx)
         ball = (self.kind[idx] == BALL)
         return np.stack((np.where(self.kind[idx] == FIXED, 0.0, twist),
                          np.where(ball, phi * dy, 0.0), np.where(ball, phi * dz, 0.0)), axis=-1)
@@ -284,6 +309,7 @@ class JointSet:
             axis = quat_rotate(fpw, np.broadcast_to(e, fpw.shape[:-1] + (3,)))
             axes.append(axis)
             inv_ms.append(dot(axis, mat_vec(ia_all, axis)) + dot(axis, mat_vec(ib_all, axis)))
+        err = ang - self.rest[idx_all]
         for color in self.colors:
             idx, pos = color["passive"], color["passive_pos"]
             if idx.size == 0:
@@ -291,14 +317,12 @@ class JointSet:
             a, b = self.parent[idx], self.child[idx]
             ia, ib = ia_all[:, pos], ib_all[:, pos]
             wa, wb = state.angular_velocity[:, a], state.angular_velocity[:, b]
-            n_axes = 1 if (self.kind[idx] == HINGE).all() else 3
             active = self._active(state, idx)
-            for k in range(n_axes):
+            k_, c_ = self.stiffness[idx], self.damping[idx]
+            for k, axis_use in enumerate(color["passive_use"]):
                 axis = axes[k][:, pos]
-                use = active * ((self.kind[idx] == BALL) | (k == 0)) * (self.kind[idx] != FIXED)
-                p = implicit_spring_impulse(self.stiffness[idx], self.damping[idx], h,
-                                            ang[:, pos, k] - self.rest[idx, k], dot(wb - wa, axis), inv_ms[k][:, pos])
-                p = (p * use)[..., None] * axis
+                p = implicit_spring_impulse(k_, c_, h, err[:, pos, k], dot(wb - wa, axis), inv_ms[k][:, pos])
+                p = (p * (active * axis_use))[..., None] * axis
                 wa = wa - mat_vec(ia, p)
                 wb = wb + mat_vec(ib, p)
             state.angular_velocity[:, a] = wa
@@ -308,7 +332,8 @@ class JointSet:
     def begin_step(self, model, state, h):
         """World inverse inertias for the step (Box2D prepares once per step)."""
         self._frames_on, self._frames, self._frames_state = True, None, state
-        self._iinv = world_inv_inertia(state.orientation, model.inv_inertia)
+        self._limits = self._swing_twist = None
+        self._set_inertia(model, state)
         s = self.settings
         # Tree joints are stiffer than Gauss-Seidel rows: the tree solve is
         # exact, while loop-closing rows fight it and gained energy when stiff
@@ -332,6 +357,12 @@ class JointSet:
             self._soft = make_soft(0.0, 0.0, h)  # rigid rows, position error by projection
             self._limit_soft = self._tree_soft = self._soft
 
+    def _set_inertia(self, model, state):
+        """World inverse inertias (and the rotation matrices, which the tree
+        solver's inertias reuse) at the state's orientations."""
+        self._rot = quat_to_matrix(state.orientation)
+        self._iinv = world_inv_inertia(None, model.inv_inertia, self._rot)
+
     def _active(self, state, idx):
         return (~state.joint_broken[:, idx]).astype(float)
 
@@ -346,7 +377,7 @@ class JointSet:
         if self.tree is not None and self._substeps_done:
             # Inertias at this substep's orientations: fast-turning light links
             # make the step's start values wrong by the end of the step.
-            self._iinv = world_inv_inertia(state.orientation, model.inv_inertia)
+            self._set_inertia(model, state)
             self.tree.begin_step(self, model, state, self._h)
         self._substeps_done += 1
         for color in self.colors:
@@ -361,17 +392,17 @@ class JointSet:
                 bz = quat_rotate(fpw, np.broadcast_to(_EZ, ra.shape))
                 lh = L[..., 1:2] * by + L[..., 2:3] * bz
                 L = np.where(hinge[:, None], lh, L)
-            L = L + self._limit_vector(state, idx, fpw, fcw)
+            L = L + self._limit_vector(state, idx)
             self._apply(model, state, a, b, ra, rb, P, L)
 
-    def _limit_vector(self, state, idx, fpw, fcw):
+    def _limit_vector(self, state, idx):
         lam = state.joint_limit_impulse[:, idx]
         if not lam.any():
             return 0.0
-        Jt, _, Js, _ = self._limit_rows(idx, fpw, fcw)
+        Jt, _, Js, _ = self.limit_geometry(state, idx)
         return (lam[..., 0:1] - lam[..., 1:2]) * Jt + lam[..., 2:3] * Js
 
-    def _limit_rows(self, idx, fpw, fcw):
+    def _limit_rows(self, idx, fpw, fcw, st=None):
         """Angular Jacobians (world vectors, Ċ = J·(ω_c - ω_p)) and errors of the
         twist and swing limits.
 
@@ -381,12 +412,13 @@ class JointSet:
         f(s) = ‖(s_y/c_y, s_z/c_z)‖ for the swing vector s = φ d, so the cone's
         boundary is f = 1 and C ≈ φ_max - φ near it; with n = (0, d), m = a × n
         (parent frame), ṡ = (ω·n) d + (φ/sin φ)(ω·m) d⊥ + φ θ̇ d⊥.
+        ``st``: the joints' ``swing_twist`` if already known.
         Returns (J_twist, twist, J_swing, C_swing).
         """
         shape = fpw.shape[:-1] + (3,)
         ax_p = quat_rotate(fpw, np.broadcast_to(_EX, shape))
         ax_c = quat_rotate(fcw, np.broadcast_to(_EX, shape))
-        twist, phi, dy, dz = swing_twist(quat_mul(quat_conj(fpw), fcw))
+        twist, phi, dy, dz = swing_twist(quat_mul(quat_conj(fpw), fcw)) if st is None else st
         ball = (self.kind[idx] == BALL)[:, None]
         mid = ax_p + ax_c
         mid = mid / np.maximum(dot(mid, mid), 1e-24)[..., None] * 2.0  # (a + c)/(1 + cos φ)
@@ -428,24 +460,28 @@ class JointSet:
             return
         rows = self._gs_limit_rows(state)
         soft = self._limit_soft
+        lo = self._one_sided_terms(rows["C_lo"], rows["m_twist"], h, use_bias, soft)
+        hi = self._one_sided_terms(rows["C_hi"], rows["m_twist"], h, use_bias, soft)
+        sw = self._one_sided_terms(rows["C_swing"], rows["m_swing"], h, use_bias, soft)
+        act = self._active(state, self.gs_limit)
         for color in self.colors:
             pos, idx = color["twist_pos"], color["twist_limit"]
             if idx.size:
                 a, b = self.parent[idx], self.child[idx]
-                Jt, m = rows["Jt"][:, pos], rows["m_twist"][:, pos]
-                self._one_sided(state, a, b, Jt, rows["C_lo"][:, pos], m, 0, idx, h, use_bias, soft)
-                self._one_sided(state, a, b, -Jt, rows["C_hi"][:, pos], m, 1, idx, h, use_bias, soft)
+                Jt, ac = rows["Jt"][:, pos], act[:, pos]
+                self._one_sided(state, a, b, Jt, [x[:, pos] for x in lo], ac, 0, idx)
+                self._one_sided(state, a, b, -Jt, [x[:, pos] for x in hi], ac, 1, idx)
             pos, idx = color["swing_pos"], color["swing_limit"]
             if idx.size:
                 self._one_sided(state, self.parent[idx], self.child[idx], rows["Js"][:, pos],
-                                rows["C_swing"][:, pos], rows["m_swing"][:, pos], 2, idx, h, use_bias, soft)
+                                [x[:, pos] for x in sw], act[:, pos], 2, idx)
 
     def _gs_limit_rows(self, state):
         """Axes, errors (C >= 0 allowed) and effective masses of every
         Gauss-Seidel limit row, at the solve's positions."""
         idx = self.gs_limit
-        a, b, fpw, fcw, _, _ = self.frames(state, idx)
-        Jt, twist, Js, C_swing = self._limit_rows(idx, fpw, fcw)
+        a, b = self.parent[idx], self.child[idx]
+        Jt, twist, Js, C_swing = self.limit_geometry(state, idx)
         lo, hi = self.lower[idx], self.upper[idx]
         has_lo, has_hi = np.isfinite(lo), np.isfinite(hi)
         ia, ib = self._iinv[:, a], self._iinv[:, b]
@@ -545,19 +581,25 @@ class JointSet:
         state.angular_velocity[:, a] -= mat_vec(ia, L)
         state.angular_velocity[:, b] += mat_vec(ib, L)
 
-    def _one_sided(self, state, a, b, axis, C, m, slot, idx, h, use_bias, soft):
-        """One-sided angular row about ``axis`` keeping C >= 0 (Box2D v3 limits),
-        effective mass m: speculative bias C/h while open, soft bias when violated."""
-        ia, ib = self._iinv[:, a], self._iinv[:, b]
-        cdot = dot(state.angular_velocity[:, b] - state.angular_velocity[:, a], axis)
+    def _one_sided_terms(self, C, m, h, use_bias, soft):
+        """Gain, bias and impulse scale of one-sided rows with error C (C >= 0
+        allowed) and effective mass m (Box2D v3 limits): speculative bias C/h,
+        rigid, while open; soft bias when violated."""
         bias_rate, mass_scale, impulse_scale = self._soft_terms(use_bias, soft)
         open_ = C > 0.0
         bias = np.where(open_, C / h, np.maximum(bias_rate * C, -self.settings.joint_max_angular_push_out))
-        ms = np.where(open_, 1.0, mass_scale)
-        isc = np.where(open_, 0.0, impulse_scale)
+        gain = -m * np.where(open_, 1.0, mass_scale)
+        return gain, bias, np.where(open_, 0.0, impulse_scale)
+
+    def _one_sided(self, state, a, b, axis, terms, act, slot, idx):
+        """One-sided angular row about ``axis``: Δλ = gain (Ċ + bias) - isc λ with
+        the accumulated λ >= 0 (``terms`` = gain, bias, isc of ``_one_sided_terms``)."""
+        gain, bias, isc = terms
+        ia, ib = self._iinv[:, a], self._iinv[:, b]
+        cdot = dot(state.angular_velocity[:, b] - state.angular_velocity[:, a], axis)
         lam = state.joint_limit_impulse[:, idx, slot]
-        d = -m * ms * (cdot + bias) - isc * lam
-        new = np.maximum(lam + d, 0.0) * self._active(state, idx)
+        d = gain * (cdot + bias) - isc * lam
+        new = np.maximum(lam + d, 0.0) * act
         d = new - lam
         state.joint_limit_impulse[:, idx, slot] = new
         L = d[..., None] * axis
@@ -566,6 +608,7 @@ class JointSet:
 
     def end_step(self, model, state, h, events):
         self._frames_on, self._frames, self._frames_state = False, None, None
+        self._limits = self._swing_twist = None
         if self.settings.solver == "thesis":
             self._project_positions(model, state)
         if not self.breakable:
@@ -629,56 +672,46 @@ def compile_joints(model, builder):
 # joint node has 6 rows: 3 point rows and 3 angular lock rows (hinge: y, z of the
 # parent frame; fixed: world x, y, z; ball: none); unused rows get -1 on the
 # diagonal and no coupling, so they solve to 0. Nodes of one (depth, kind) are one
-# vectorised group; 6x6 products are written out over the inner index so the
-# result of a world never depends on the number of worlds.
+# vectorised group. The 6x6 products and inverses are np.matmul (BLAS) and
+# np.linalg.inv (LAPACK) per matrix: one call per group instead of one per inner
+# index (measured 1.2-1.3x the whole ragdoll step at W = 1..1024), and still one
+# library call per 6x6 matrix, so the result of a world never depends on the
+# number of worlds.
 
 
+# Entries of -[r]× = [[0, r_z, -r_y], [-r_z, 0, r_x], [r_y, -r_x, 0]] in the
+# top-right block of a 6x6 joint Jacobian: (row, column, component of r, sign).
+_SKEW_ROW = np.array([0, 0, 1, 1, 2, 2])
+_SKEW_COL = np.array([4, 5, 3, 5, 3, 4])
+_SKEW_COMP = np.array([2, 1, 2, 0, 1, 0])
+_SKEW_SIGN = np.array([1.0, -1.0, -1.0, 1.0, 1.0, -1.0])
+_DIAG3 = np.arange(3)
 ACTIVE_SET_TOLERANCE = 1e-6  # rad/s: a limit row closing faster than this after a solve joins the active set
 
 
 def _mm(A, B):
-    """(..., n, k) @ (..., k, m) written out over k."""
-    out = A[..., :, 0, None] * B[..., None, 0, :]
-    for k in range(1, A.shape[-1]):
-        out = out + A[..., :, k, None] * B[..., None, k, :]
-    return out
+    """A B for (..., n, k), (..., k, m)."""
+    return np.matmul(A, B)
 
 
 def _mtm(A, B):
     """Aᵀ B for (..., k, n), (..., k, m)."""
-    out = A[..., 0, :, None] * B[..., None, 0, :]
-    for k in range(1, A.shape[-2]):
-        out = out + A[..., k, :, None] * B[..., None, k, :]
-    return out
+    return np.matmul(np.swapaxes(A, -1, -2), B)
 
 
 def _mv(A, x):
-    out = A[..., :, 0] * x[..., 0, None]
-    for k in range(1, A.shape[-1]):
-        out = out + A[..., :, k] * x[..., k, None]
-    return out
+    """A x for (..., n, k), (..., k)."""
+    return np.matmul(A, x[..., None])[..., 0]
 
 
 def _mtv(A, x):
-    out = A[..., 0, :] * x[..., 0, None]
-    for k in range(1, A.shape[-2]):
-        out = out + A[..., k, :] * x[..., k, None]
-    return out
+    """Aᵀ x for (..., k, n), (..., k)."""
+    return np.matmul(np.swapaxes(A, -1, -2), x[..., None])[..., 0]
 
 
 def _inv_definite(A):
-    """Inverse of definite (..., n, n) matrices by in-place Gauss-Jordan without pivoting."""
-    n = A.shape[-1]
-    M = A.copy()
-    for k in range(n):
-        piv = 1.0 / M[..., k, k]
-        row = M[..., k, :] * piv[..., None]
-        col = M[..., :, k].copy()
-        M -= col[..., :, None] * row[..., None, :]
-        M[..., :, k] = -col * piv[..., None]
-        M[..., k, :] = row
-        M[..., k, k] = piv
-    return M
+    """Inverse of definite (..., n, n) matrices."""
+    return np.linalg.inv(A)
 
 
 def _unique_splits(targets):
@@ -797,6 +830,18 @@ class _JointTree:
         self.body_pos = body_node
 
 
+class _Group:
+    """One (depth, kind) group of tree nodes: body nodes (ids < nb) with their
+    parent joints pj, or joint nodes jids with their parent body nodes par."""
+
+    def __init__(self, ids, par, splits, nb):
+        self.ids, self.par, self.splits = ids, par, splits
+        self.body = bool(ids[0] < nb)
+        self.has_parent = bool(par[0] >= 0)
+        self.pj = par - nb  # body groups: parent joint of each body
+        self.jids = ids - nb  # joint groups: tree joint index
+
+
 class _TreeSolver:
     """Per-substep factorisation and solve of the joint tree (see ``_JointTree``)."""
 
@@ -813,12 +858,14 @@ class _TreeSolver:
         self.ang_mask = np.zeros((len(j), 3))
         self.ang_mask[self.kind == HINGE, 1:] = 1.0
         self.ang_mask[self.kind == FIXED] = 1.0
-        # Body node of each joint's tree child, to fill the body -> parent-joint blocks.
+        self.eq_mask = np.concatenate((np.ones((len(j), 3)), self.ang_mask), axis=1)  # rows stored as joint impulses
+        self.hinges = np.flatnonzero(self.kind == HINGE)
+        self.fixed = np.flatnonzero(self.kind == FIXED)
         nb = t.n_bodies
-        self.body_parent_joint = np.where(t.node_parent[:nb] >= 0, t.node_parent[:nb] - nb, -1)
         self.num_bodies = model.num_bodies
         self.split_a = _unique_splits(js.parent[j])
         self.split_b = _unique_splits(js.child[j])
+        self.groups = [_Group(ids, par, splits, nb) for ids, par, splits in t.groups]
         self.limits = False
         self.active_set_passes = settings.joint_active_set_passes
 
@@ -830,7 +877,7 @@ class _TreeSolver:
         m = model.mass[b]
         for k in range(3):
             M[..., k, k] = m
-        I = world_inv_inertia(state.orientation[:, b], model.inertia[b])
+        I = world_inv_inertia(None, model.inertia[b], js._rot[:, b])
         self.iinv = js._iinv
         if js.settings.joint_geometric_stiffness:
             # Geometric stiffness (Andrews, Teichmann & Kry 2017; Tournier et al.
@@ -878,25 +925,20 @@ class _TreeSolver:
         mask[..., :3] = act[..., None]
         mask[..., 3:] = act[..., None] * self.ang_mask
         hinge = (self.kind == HINGE)[:, None, None]
-        fixed = (self.kind == FIXED)[:, None, None]
-        by = quat_rotate(fpw, np.broadcast_to(_EY, shape))
-        bz = quat_rotate(fpw, np.broadcast_to(_EZ, shape))
+        # Angular lock rows: hinge (0, y, z) of the parent frame, fixed I, ball none.
         E = np.zeros((W, nj, 3, 3))
-        E[..., 1, :] = by
-        E[..., 2, :] = bz
-        E = np.where(hinge, E, np.where(fixed, np.eye(3), 0.0))
-        Jb = np.zeros((W, nj, 6, 6))
-        Ja = np.zeros((W, nj, 6, 6))
-        sb, sa = skew(rb), skew(ra)
-        for k in range(3):
-            Jb[..., k, k] = 1.0
-            Ja[..., k, k] = -1.0
-        Jb[..., :3, 3:] = -sb
-        Ja[..., :3, 3:] = sa
-        Jb[..., 3:, 3:] = E
-        Ja[..., 3:, 3:] = -E
-        Jb *= mask[..., None]
-        Ja *= mask[..., None]
+        if self.hinges.size:
+            fh = fpw[:, self.hinges]
+            E[:, self.hinges, 1] = quat_rotate(fh, np.broadcast_to(_EY, fh.shape[:-1] + (3,)))
+            E[:, self.hinges, 2] = quat_rotate(fh, np.broadcast_to(_EZ, fh.shape[:-1] + (3,)))
+        E[:, self.fixed] = np.eye(3)
+        # Side b: [[I, -[r_b]×], [0, E]]; side a: -[[I, -[r_a]×], [0, E]]; rows masked.
+        J = np.zeros((2, W, nj, 6, 6))
+        J[..., _DIAG3, _DIAG3] = 1.0
+        J[..., _SKEW_ROW, _SKEW_COL] = np.stack((rb, ra))[..., _SKEW_COMP] * _SKEW_SIGN
+        J[..., 3:, 3:] = E
+        J *= mask[..., None]
+        Jb, Ja = J[0], np.negative(J[1], out=J[1])
         va, vb = state.velocity[:, a], state.velocity[:, b]
         wa, wb = state.angular_velocity[:, a], state.angular_velocity[:, b]
         r = np.empty((W, nj, 6))
@@ -924,9 +966,9 @@ class _TreeSolver:
         Returns J rows (W, nj, 3, 3), rhs (W, nj, 3), sign σ (W, nj, 3) with
         σ·λ >= 0 required, and which rows exist (W, nj, 3)."""
         idx = self.joints
-        a, b, fpw, fcw, _, _ = js.frames(state, idx)
+        a, b = js.parent[idx], js.child[idx]
         lam = state.joint_limit_impulse[:, idx]
-        Jt, twist, Js, Cs = js._limit_rows(idx, fpw, fcw)
+        Jt, twist, Js, Cs = js.limit_geometry(state, idx)
         # Remove the warm-started limit impulse.
         L = (lam[..., 0:1] - lam[..., 1:2]) * Jt + lam[..., 2:3] * Js
         np.add.at(state.angular_velocity, (slice(None), a), mat_vec(js._iinv[:, a], L))
@@ -1034,10 +1076,7 @@ class _TreeSolver:
         are not stored here) and apply J_aᵀ d, J_bᵀ d."""
         idx = self.joints
         lam = self._lam(state)
-        eqmask = np.zeros(d.shape)
-        eqmask[..., :3] = 1.0
-        eqmask[..., 3:] = self.ang_mask
-        new = lam + d * eqmask
+        new = lam + d * self.eq_mask
         state.joint_linear_impulse[:, idx] = new[..., :3]
         state.joint_angular_impulse[:, idx] = new[..., 3:]
         imp = self._body_impulses(Ja, Jb, d)
@@ -1049,53 +1088,68 @@ class _TreeSolver:
         return self._substitute(self._factor(Ja, Jb, mask), r)
 
     def _factor(self, Ja, Jb, mask):
-        """Block LDLᵀ factors of [M Jᵀ; J 0] in leaves-first order."""
-        t = self.t
-        nb = t.n_bodies
-        W = mask.shape[0]
+        """Block LDLᵀ factors of [M Jᵀ; J 0] in leaves-first order.
+
+        A body node's pivot is D_b = M_b - Σ_children J_pᵀ D_j⁻¹ J_p; a joint
+        node's is D_j = diag(mask - 1) - J_c D_c⁻¹ J_cᵀ (its one child body c).
+        Returns D⁻¹ and L = D⁻¹ H_parent of each group."""
+        nb = self.t.n_bodies
         cb = self.child_is_b[:, None, None]
         Jc = np.where(cb, Jb, Ja)  # block of the joint's tree child body
         Jp = np.where(cb, Ja, Jb)  # block of its tree parent body (unused for roots)
-        n = t.n_nodes
-        Hd = np.zeros((W, n, 6, 6))
-        Hd[:, :nb] = self.M
-        for k in range(6):
-            Hd[:, nb:, k, k] = mask[..., k] - 1.0
-        Hp = np.zeros((W, n, 6, 6))
-        Hp[:, nb:] = Jp
-        has = self.body_parent_joint >= 0
-        Hp[:, np.flatnonzero(has)] = np.swapaxes(Jc[:, self.body_parent_joint[has]], -1, -2)
-        acc = np.zeros((W, n, 6, 6))
-        Dinv, L = {}, {}
-        for gi, (ids, par, splits) in enumerate(t.groups):
-            Di = _inv_definite(Hd[:, ids] - acc[:, ids])
-            Dinv[gi] = Di
-            if par[0] >= 0:
-                Lg = _mm(Di, Hp[:, ids])
-                L[gi] = Lg
-                _scatter_add(acc, splits, _mtm(Hp[:, ids], Lg))
+        W = mask.shape[0]
+        acc_b = np.zeros((W, nb, 6, 6))
+        acc_j = np.empty(Jc.shape)  # J_c D_c⁻¹ J_cᵀ of each joint's child body
+        off = np.zeros((W, 1, 6, 6))
+        Dinv, L = [], []
+        for g in self.groups:
+            if g.body:
+                Di = _inv_definite(self.M[:, g.ids] - acc_b[:, g.ids])
+                if g.has_parent:
+                    Jg = Jc[:, g.pj]
+                    Lg = _mm(Di, np.swapaxes(Jg, -1, -2))
+                    acc_j[:, g.pj] = _mm(Jg, Lg)
+            else:
+                D = off - acc_j[:, g.jids]
+                D.reshape(D.shape[:-2] + (36,))[..., ::7] = (mask[:, g.jids] - 1.0) - acc_j[:, g.jids].reshape(
+                    D.shape[:-2] + (36,))[..., ::7]
+                Di = _inv_definite(D)
+                if g.has_parent:
+                    Jg = Jp[:, g.jids]
+                    Lg = _mm(Di, Jg)
+                    _scatter_add(acc_b, g.splits, _mtm(Jg, Lg))
+            Dinv.append(Di)
+            L.append(Lg if g.has_parent else None)
         return Dinv, L
 
     def _substitute(self, factors, r):
         """Forward and back substitution with the factors of ``_factor``."""
         Dinv, L = factors
-        t = self.t
-        nb = t.n_bodies
+        nb = self.t.n_bodies
         W = r.shape[0]
-        n = t.n_nodes
-        rhs = np.zeros((W, n, 6))
-        rhs[:, nb:] = r
-        accb = np.zeros((W, n, 6))
-        bp = {}
-        for gi, (ids, par, splits) in enumerate(t.groups):
-            bp[gi] = rhs[:, ids] - accb[:, ids]
-            if par[0] >= 0:
-                _scatter_add(accb, splits, _mtv(L[gi], bp[gi]))
-        x = np.zeros((W, n, 6))
-        for gi in range(len(t.groups) - 1, -1, -1):
-            ids, par, _ = t.groups[gi]
-            xi = _mv(Dinv[gi], bp[gi])
-            if par[0] >= 0:
-                xi = xi - _mv(L[gi], x[:, par])
-            x[:, ids] = xi
-        return -x[:, nb:]  # (J M⁻¹ Jᵀ)⁻¹ r per joint
+        acc_b = np.zeros((W, nb, 6))
+        acc_j = np.empty(r.shape)
+        bp = []
+        for g, Lg in zip(self.groups, L):
+            if g.body:
+                b = -acc_b[:, g.ids]
+                if g.has_parent:
+                    acc_j[:, g.pj] = _mtv(Lg, b)
+            else:
+                b = r[:, g.jids] - acc_j[:, g.jids]
+                if g.has_parent:
+                    _scatter_add(acc_b, g.splits, _mtv(Lg, b))
+            bp.append(b)
+        x_b = np.empty((W, nb, 6))
+        x_j = np.empty(r.shape)
+        for g, Di, Lg, b in zip(self.groups[::-1], Dinv[::-1], L[::-1], bp[::-1]):
+            xi = _mv(Di, b)
+            if g.body:
+                if g.has_parent:
+                    xi = xi - _mv(Lg, x_j[:, g.pj])
+                x_b[:, g.ids] = xi
+            else:
+                if g.has_parent:
+                    xi = xi - _mv(Lg, x_b[:, g.par])
+                x_j[:, g.jids] = xi
+        return -x_j  # (J M⁻¹ Jᵀ)⁻¹ r per joint

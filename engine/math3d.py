@@ -173,8 +173,12 @@ def skew(v: np.ndarray) -> np.ndarray:
 
 def mat_vec(m: np.ndarray, v: np.ndarray) -> np.ndarray:
     """(..., 3, 3) @ (..., 3), written out as a sum of the columns scaled by
-    v's components (row i: m_i0 v_0 + m_i1 v_1 + m_i2 v_2, left to right)."""
-    return m[..., 0] * v[..., 0:1] + m[..., 1] * v[..., 1:2] + m[..., 2] * v[..., 2:3]
+    v's components (row i: m_i0 v_0 + m_i1 v_1 + m_i2 v_2, left to right),
+    summed in place."""
+    out = m[..., 0] * v[..., 0:1]
+    out += m[..., 1] * v[..., 1:2]
+    out += m[..., 2] * v[..., 2:3]
+    return out
 
 
 def sym3_inverse(k: np.ndarray) -> np.ndarray:
@@ -201,9 +205,11 @@ def sym3_solve(k: np.ndarray, b: np.ndarray) -> np.ndarray:
     return mat_vec(sym3_inverse(k), b)
 
 
-def world_inv_inertia(q: np.ndarray, inv_inertia_body: np.ndarray) -> np.ndarray:
-    """World-frame inverse inertia R diag(I⁻¹) Rᵀ as (..., 3, 3)."""
-    r = quat_to_matrix(q)
+def world_inv_inertia(q: np.ndarray, inv_inertia_body: np.ndarray, r: np.ndarray | None = None) -> np.ndarray:
+    """World-frame inverse inertia R diag(I⁻¹) Rᵀ as (..., 3, 3); ``r``: the
+    rotation matrices of ``q`` if already known (then ``q`` is unused)."""
+    if r is None:
+        r = quat_to_matrix(q)
     d = inv_inertia_body[..., None, :]
     rd = r * d  # R diag(d): scale columns
     out = np.empty(r.shape)
