@@ -59,9 +59,16 @@ def step(model, state, control: Control | None = None):
     for c in constraints:
         c.begin_step(model, state, h)
     for _ in range(s.substeps):
+        if passive:
+            # Passive joint springs and dampers act on the constrained velocities of
+            # the last substep, before this substep's forces: applied after the motor
+            # torques, an implicit damper on a light bone held by a contact (a foot
+            # on the ground) took back most of the motor's torque before the contact
+            # could answer it (an ankle passed 28% of its torque to the ground).
+            model.joints.passive(model, state, h)
         if s.integrator == "symplectic":
             integrate_velocities(model, state, control, h)
-            _velocity_effects(model, state, h, passive)
+            _velocity_effects(model, state, h)
             _solve(model, state, constraints, h, use_bias=True)
             integrate_positions(model, state, h)
             _positions_moved(model)
@@ -69,14 +76,14 @@ def step(model, state, control: Control | None = None):
         elif s.integrator == "euler":
             explicit_euler(model, state, control, h)
             _positions_moved(model)
-            _velocity_effects(model, state, h, passive)
+            _velocity_effects(model, state, h)
             _solve(model, state, constraints, h, use_bias=True)
             _solve(model, state, constraints, h, use_bias=False)
         else:
             runge_kutta4(model, state, control, h)
             _positions_moved(model)
             v1, w1 = state.velocity.copy(), state.angular_velocity.copy()
-            _velocity_effects(model, state, h, passive)
+            _velocity_effects(model, state, h)
             _solve(model, state, constraints, h, use_bias=True)
             # Constraint impulses move the positions by h Δv beyond the RK4 flow.
             state.position += h * (state.velocity - v1)
@@ -101,11 +108,9 @@ def _positions_moved(model):
         model.joints.positions_moved()
 
 
-def _velocity_effects(model, state, h, passive):
+def _velocity_effects(model, state, h):
     for effect in model.velocity_hooks:
         effect.velocity(model, state, h)
-    if passive:
-        model.joints.passive(model, state, h)
 
 
 def _solve(model, state, constraints, h, use_bias):
