@@ -25,10 +25,12 @@ Starting points (RL Baselines3 Zoo, ``hyperparams/ppo.yml``):
   gae_lambda 0.8, gamma 0.98, 20 epochs, [64, 64] networks);
 * Balance follows the Zoo's Humanoid entry (normalised observations,
   lr 2.5e-4-ish, gamma 0.99, gae_lambda 0.95, ReLU [256, 256] networks with
-  ``log_std_init=-2``), with more worlds per rollout, and learns a residual
+  ``log_std_init=-3.9``), with more worlds per rollout, and learns a residual
   on the standing PD (``ragdoll_env.baselines.StandingPD``): SB3's orthogonal
   init gives the action layer gain 0.01, so the first policy is the PD plus
-  exploration noise (σ = e⁻² ≈ 0.14 of each maximum torque).
+  exploration noise (σ = e^-3.9 ≈ 0.02 of each maximum torque: under the
+  default pushes the PD plus Gaussian noise of σ 0.01, 0.03, 0.05 and 0.1
+  lasted 7.9, 7.1, 4.1 and 0.9 s on average, 16 worlds).
 
 ``--config PATH`` (JSON or YAML) is merged over the entry, key by key (nested
 dicts merged recursively), e.g. ``{"ppo": {"learning_rate": 3e-4}}``.
@@ -88,7 +90,7 @@ CONFIGS = {
             "vf_coef": 0.5,
             "max_grad_norm": 0.5,
             "policy_kwargs": {"net_arch": {"pi": [256, 256], "vf": [256, 256]}, "activation_fn": "relu",
-                              "log_std_init": -2.0, "ortho_init": True},
+                              "log_std_init": -3.9, "ortho_init": True},
         },
         "normalize": {"norm_obs": True, "norm_reward": True, "clip_obs": 10.0, "gamma": 0.99},
         "env_kwargs": {},

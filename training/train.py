@@ -215,6 +215,12 @@ def train(args) -> dict:
                         verbose=args.verbose, **ppo_kwargs)
         except (TypeError, ValueError) as exc:
             raise C.TrainingError(f"bad PPO settings in the config: {exc}") from exc
+        if cfg.get("residual"):
+            # A residual policy starts as the baseline itself: zero mean action, only the
+            # exploration noise on top (orthogonal init's 0.01 gain still gave mean torques
+            # that felled the standing PD within a second).
+            for p in model.policy.action_net.parameters():
+                p.data.zero_()
         resumed_from = None
     eval_env.obs_rms = vecnorm.obs_rms  # shared (EvalCallback also syncs before each evaluation)
 
