@@ -14,16 +14,18 @@ SOLVERS = ("soft_step", "thesis")
 JOINT_SOLVERS = ("tree", "gauss_seidel")
 
 #: Settings for accuracy over speed (``Settings(**ACCURATE)``): rigid tree
-#: joints with their limits inside the tree solve, at 12 substeps. Measured
+#: joints with their limits inside the tree solve, at 16 substeps. Measured
 #: (tests/engine/test_joints.py, benchmarks.accuracy; figures in the README):
 #: humanoid in free fall under bang-bang maximum torques for 10 s: anchor
-#: error under 1 mm and limits within 0.7° (at 8 substeps 2 mm and 1.5-2.4°:
-#: a light foot crosses its swing cone within a substep), at 2.7 times
-#: the default's cost on the ragdoll (4.7 vs 1.7 wall s per simulated s);
+#: error under 1 mm and limits within 0.55° (seeds 1, 2). At 12 substeps it
+#: held 0.7° until the joint dampers stopped absorbing motor torque; with the
+#: torques in full, 12 substeps let the limits pass by 3.5-3.9° (8 substeps,
+#: before: 1.5-2.4°: a light foot crosses its swing cone within a substep).
+#: At 12 substeps it cost 2.7 times the default on the ragdoll;
 #: a ragdoll dropped on the ground still moves at up to 2 cm/s 3-5 s later
 #: (the Gauss-Seidel contacts fight the rigid joints; the defaults: under
 #: 1 cm/s), so the defaults stay soft.
-ACCURATE = {"substeps": 12, "joint_hertz": math.inf, "joint_limits_in_tree": True}
+ACCURATE = {"substeps": 16, "joint_hertz": math.inf, "joint_limits_in_tree": True}
 
 
 @dataclass(frozen=True)
