@@ -122,19 +122,19 @@ for _n in ("mass_ratio_sandwich", "ragdoll_impact_100"):
 #: the quick duration is a miss of the full duration too.
 SLOW_XFAIL = {
     "mass_ratio_sandwich": "measured (quick run): penetration 3.3 cm > 2 cm; not at rest: 0.36 m/s > 0.05 m/s after 1 s",
-    "ball_and_chain": "measured (quick run): anchor error 1.7 cm > 1 cm",
+    "ball_and_chain": "measured (quick run): anchor error 1.6 cm > 1 cm",
     "stack_20": "measured (quick run): not at rest: 0.14 m/s > 0.05 m/s after 2 s",
     "overlap_column": "measured (quick run): a body at 5.4 m/s > 2 m/s; not at rest: 1.7 m/s > 0.1 m/s "
                       "after 2.5 s",
-    "ragdoll_pile_10": "measured (quick run): anchor error 2.0 cm > 1 cm",
+    "ragdoll_pile_10": "measured (quick run): anchor error 2.3 cm > 1 cm",
     "sphere_grid": "measured (quick run): anchor error 3.8 cm > 1 cm",
-    "ragdoll_impact_100": "measured (quick run): joints pulled apart at impact, anchor error 75 cm > 5 cm",
+    "ragdoll_impact_100": "measured (quick run): joints pulled apart at impact, anchor error 51 cm > 5 cm",
     "large_dt_ragdoll": "measured (quick run): anchor error 5.5 cm > 1 cm",
     "large_dt_stack": "measured (quick run): not at rest: 0.069 m/s > 0.05 m/s after 2 s",
 }
 for _n in ("mass_ratio_sandwich", "stack_20", "overlap_column", "sphere_grid", "ragdoll_impact_100"):
     SLOW_XFAIL[_n + "_far"] = SLOW_XFAIL[_n]
-SLOW_XFAIL["ragdoll_pile_10_far"] = "measured (quick run): anchor error 2.5 cm > 1 cm"
+SLOW_XFAIL["ragdoll_pile_10_far"] = "measured (quick run): anchor error 2.3 cm > 1 cm"
 SLOW_XFAIL["pyramid_10"] = ("measured (full run): not at rest, the pyramid sways in its thin direction from 2 s "
                             "on, top box at 0.23 m/s by 7.5 s (bound 0.05 m/s); gone with contact_damping_ratio "
                             "1-3 or 8 substeps")
@@ -165,22 +165,22 @@ def test_max_torque_quick_length():
     """The benchmark's quick length: 2,000 steps."""
     case = sc.ragdoll_max_torque()
     run_and_check(case, 2_000 * case.dt, known_miss="measured (benchmarks.stability --quick): anchor error "
-                                                     "12 cm > 1 cm, penetration 11 cm > 5 cm within 2,000 steps")
+                                                     "13 cm > 1 cm, penetration 13 cm > 5 cm within 2,000 steps")
 
 
 @pytest.mark.slow
 def test_max_torque_100k_steps():
     """The long run: 100,000 steps of random maximum torques."""
     case = sc.ragdoll_max_torque()
-    run_and_check(case, 100_000 * case.dt, known_miss="measured: anchor error 12 cm > 1 cm within the first "
+    run_and_check(case, 100_000 * case.dt, known_miss="measured: anchor error 13 cm > 1 cm within the first "
                                                        "2,000 steps")
 
 
 @pytest.mark.slow
 def test_max_torque_far():
     case = sc.ragdoll_max_torque(FAR)
-    run_and_check(case, 2_000 * case.dt, known_miss="measured 10 km out: anchor error 7.4 cm > 1 cm, "
-                                                     "penetration 7.5 cm > 5 cm in 2,000 steps")
+    run_and_check(case, 2_000 * case.dt, known_miss="measured 10 km out: anchor error 11 cm > 1 cm, "
+                                                     "penetration 12 cm > 5 cm in 2,000 steps")
 
 
 # ------------------------------------------------------------------ determinism
