@@ -134,6 +134,7 @@ SLOW_XFAIL = {
 }
 for _n in ("mass_ratio_sandwich", "stack_20", "overlap_column", "sphere_grid", "ragdoll_impact_100"):
     SLOW_XFAIL[_n + "_far"] = SLOW_XFAIL[_n]
+SLOW_XFAIL["ball_and_chain_far"] = "measured (full run): anchor error 3.4 cm > 1 cm within 10 s"
 SLOW_XFAIL["ragdoll_pile_10_far"] = "measured (quick run): anchor error 2.3 cm > 1 cm"
 SLOW_XFAIL["pyramid_10"] = ("measured (full run): not at rest, the pyramid sways in its thin direction from 2 s "
                             "on, top box at 0.23 m/s by 7.5 s (bound 0.05 m/s); gone with contact_damping_ratio "
