@@ -297,6 +297,14 @@ def pyramid(offset=(0, 0, 0), rows=10):
                  energy_tol=_energy_tol(k * 9.81 * 1.5), penetration_bound=0.02)
 
 
+def _overlap_bounds(n):
+    """Bounds of a scene of ``n`` 1 kg boxes created overlapping."""
+    # Separating overlap lifts boxes: the solver's push-out does work. Allowance:
+    # the potential of lifting every box by its full size, n m g 2H.
+    return dict(duration=10.0, quick_duration=3.0, speed_bound=2.0, rest_time=2.5, rest_speed=0.1,
+                energy_tol=n * 1.0 * 9.81 * 2 * H, penetration_bound=0.02, penetration_after=2.0)
+
+
 def overlap_recovery(offset=(0, 0, 0), base=4, depth=2, overlap=0.25):
     """Solver2D's overlap recovery in 3D: a pyramid ``base`` boxes wide, ``depth``
     deep (4 x 2: 20 boxes), whose neighbours overlap by ``overlap`` of a box's
@@ -314,10 +322,7 @@ def overlap_recovery(offset=(0, 0, 0), base=4, depth=2, overlap=0.25):
                 b.add_body(f"box{n}", e.Box((H, H, H)), mass=1.0, position=o + p)
                 n += 1
     return _make("overlap_recovery", f"pyramid of {n} boxes created overlapping by {overlap:.0%}", b, o,
-                 duration=10.0, quick_duration=3.0, speed_bound=2.0, rest_time=2.5, rest_speed=0.1,
-                 # Separating overlap lifts boxes: the solver's push-out does work. Allowance:
-                 # the potential of lifting every box by its full size, n m g 2H.
-                 energy_tol=n * 1.0 * 9.81 * 2 * H, penetration_bound=0.02, penetration_after=2.0)
+                 **_overlap_bounds(n))
 
 
 def overlap_column(offset=(0, 0, 0), n=20, seed=0):
@@ -330,9 +335,7 @@ def overlap_column(offset=(0, 0, 0), n=20, seed=0):
         p = (rng.uniform(-0.3, 0.3), rng.uniform(-0.3, 0.3), H + 0.1 * i)
         qv = rng.normal(size=4)
         b.add_body(f"box{i}", e.Box((H, H, H)), mass=1.0, position=o + p, orientation=qv / np.linalg.norm(qv))
-    return _make("overlap_column", f"{n} boxes created deep inside each other", b, o,
-                 duration=10.0, quick_duration=3.0, speed_bound=2.0, rest_time=2.5, rest_speed=0.1,
-                 energy_tol=n * 1.0 * 9.81 * 2 * H, penetration_bound=0.02, penetration_after=2.0)
+    return _make("overlap_column", f"{n} boxes created deep inside each other", b, o, **_overlap_bounds(n))
 
 
 def _humanoid_lying(b, prefix, pelvis_pos, yaw):

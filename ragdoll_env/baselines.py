@@ -345,10 +345,10 @@ class StandingPD(Controller):
         pos, quat = pose(h, model, standing)
         self.S, leg = support_torques(self.core, pos, quat)
         self.leg_rows = leg >= 0
-        # Ankle rows act through a foot on the ground: feet[k] is the foot_contacts slot of ankle row k (-1: none).
-        names = list(self.core.actuator_names)
+        # Ankle rows act through a foot on the ground: ankle_foot[k] is the foot_contacts slot of row k (-1: none).
         slot = {int(f): i for i, f in enumerate(task.feet)}
-        self.ankle_foot = np.array([slot[int(leg[k])] if "ankle" in names[k] else -1 for k in range(len(names))])
+        self.ankle_foot = np.array([slot[int(leg[k])] if joint.startswith("ankle") else -1
+                                    for k, joint in enumerate(joint_of)])
         self.pelvis_build = quat[task.pelvis]
         A, eps = model.num_actuators, 1e-5
         self.G = np.zeros((A, A))
