@@ -95,7 +95,7 @@ class ContactRows:
     def __init__(self, model, state, contacts, w, p, a, b, normal, point, sep, valid, lam_n, lam_t, h):
         s = contacts.settings
         N = model.num_bodies
-        self.w, self.p = w, p
+        self.w, self.p, self.a, self.b = w, p, a, b
         self.ka, self.kb = w * N + a, w * N + b
         self.dyn_a, self.dyn_b = model.dynamic[a], model.dynamic[b]
         # Rows whose body a is static (ground contacts) get exact zero changes

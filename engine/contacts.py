@@ -167,6 +167,15 @@ class ContactSet:
         self.rows.store(state)
 
     # --------------------------------------------------------------- queries
+    def bodies_in_contact(self, state) -> np.ndarray:
+        """(W, num_bodies) bool: bodies with a contact row this step (touching,
+        or within the speculative margin of touching)."""
+        out = np.zeros(state.position.shape[:2], dtype=bool)
+        if self.rows is not None:
+            out[self.rows.w, self.rows.a] = True
+            out[self.rows.w, self.rows.b] = True
+        return out
+
     def touching_static(self, state, tolerance: float = 1e-3) -> np.ndarray:
         """(W, N) bool: the body pressed on, or within ``tolerance`` m of, a
         static body (the ground) at the end of the last step."""

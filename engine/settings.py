@@ -46,12 +46,13 @@ class Settings:
         order, Baraff 1996; joints closing loops stay Gauss-Seidel) or
         "gauss_seidel" (one 3x3/2x2 block per joint per sweep, colour order).
         Limits are Gauss-Seidel rows either way. Only the soft step uses it.
-    joint_geometric_stiffness: with the tree solver, add each joint's
+    joint_geometric_stiffness: with the tree solver, add to every tree joint
+        (free articulations: ``free_joint_geometric_stiffness``) its
         geometric stiffness h²|F|(|r|² I - r rᵀ)/|r| to the inertia its bodies
         show the joint solve (Andrews et al. 2017), which stabilises light links
         between heavy loads (the zigzag mode of a chain under tension). Off by
         default: it fixes the 100:1 chain released from horizontal at 4
-        substeps (220 mm -> 0.4 mm anchor error) but made the humanoid under
+        substeps with soft joints (317 mm -> 0.4 mm anchor error) but made the humanoid under
         maximum torques and the hinge-limit test worse in measurements.
     joint_geometric_stiffness_cap: that added inertia is capped at this many
         times the body's own (trace ratio); without a cap the load and the
@@ -68,11 +69,22 @@ class Settings:
         swings 16° past its cone within a substep. On in ``ACCURATE``.
     joint_active_set_passes: most factorisations per sweep for that active set.
     joint_hertz, joint_damping_ratio: softness of the joints the tree solver
-        solves (Hz, -); capped at half the substep rate (hω <= π);
-        ``joint_hertz = inf`` makes them rigid (full bias C/h). The default
-        60 Hz, ζ 2 lets a dropped ragdoll come to rest; the ``ACCURATE``
-        preset's 240 Hz, ζ 0.5 at 8 substeps keeps the pendulum's period within
-        1e-4 but a resting ragdoll jitters at ~6 cm/s against its contacts.
+        solves in an articulation that Gauss-Seidel rows act on: a contact
+        this step, a loop-closing joint, a limit outside the tree (Hz, -);
+        capped at half the substep rate (hω <= π); ``joint_hertz = inf`` makes
+        them rigid (full bias C/h). The default 60 Hz, ζ 2 lets a dropped
+        ragdoll come to rest; rigid, its contacts (which see one body's mass)
+        and the exact tree solve fight, and it chatters at 5-9 cm/s 3-6 s after
+        landing.
+    free_joint_hertz: the same for an articulation nothing else acts on (a
+        pendulum, a chain in the air); default inf, rigid: a soft pendulum's
+        period was 0.34% long and it lost 9% of its energy in 60 s (rigid:
+        0.006% and 0.5%), and a 100:1 ball and chain opened by 2.5 cm (rigid
+        with geometric stiffness: 4 mm).
+    free_joint_geometric_stiffness: add geometric stiffness (below) to the
+        joints of those free articulations; on by default: rigid joints
+        without it let the 100:1 chain released from horizontal open by
+        231 mm (with it 16 mm).
     gs_joint_hertz, gs_joint_damping_ratio: softness of the joints solved by
         Gauss-Seidel rows: those closing loops, and all of them with
         joint_solver "gauss_seidel" (default 60 Hz, ζ 2; stiffer loop rows fight
@@ -113,6 +125,8 @@ class Settings:
     joint_active_set_passes: int = 3
     joint_hertz: float = 60.0
     joint_damping_ratio: float = 2.0
+    free_joint_hertz: float = math.inf
+    free_joint_geometric_stiffness: bool = True
     gs_joint_hertz: float = 60.0
     gs_joint_damping_ratio: float = 2.0
     joint_relax: bool = True
@@ -148,7 +162,7 @@ class Settings:
             raise ValueError(f"settings: unknown solver {self.solver!r}; choose one of {SOLVERS}")
         if self.joint_solver not in JOINT_SOLVERS:
             raise ValueError(f"settings: unknown joint_solver {self.joint_solver!r}; choose one of {JOINT_SOLVERS}")
-        for name in ("joint_hertz", "gs_joint_hertz", "contact_hertz", "limit_hertz"):
+        for name in ("joint_hertz", "free_joint_hertz", "gs_joint_hertz", "contact_hertz", "limit_hertz"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"settings: {name} must be > 0 (inf for rigid), got {getattr(self, name)!r}")
         for name in ("joint_geometric_stiffness_cap", "joint_damping_ratio", "gs_joint_damping_ratio", "contact_damping_ratio", "max_push_out",

@@ -56,8 +56,12 @@ def step(model, state, control: Control | None = None):
     events = []
     constraints = [c for c in (model.joints, model.contacts) if c is not None and c.has_constraints]
     passive = model.joints is not None and model.joints.has_passive
-    for c in constraints:
-        c.begin_step(model, state, h)
+    touching = None
+    if model.contacts is not None and model.contacts.has_constraints:
+        model.contacts.begin_step(model, state, h)
+        touching = model.contacts.bodies_in_contact(state)
+    if model.joints is not None and model.joints.has_constraints:
+        model.joints.begin_step(model, state, h, touching)
     for _ in range(s.substeps):
         if passive:
             # Passive joint springs and dampers act on the constrained velocities of

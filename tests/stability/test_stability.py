@@ -107,7 +107,6 @@ FAST = {
 #: measured misses of the fast part (python -m pytest tests/stability, this checkout)
 FAST_XFAIL = {
     "mass_ratio_sandwich": "measured: penetration 3.3 cm > 2 cm; still moving at 0.36 m/s after 1 s",
-    "ball_and_chain": "measured: anchor error 1.7 cm > 1 cm within 3 s",
     "stack_5": "measured: not at rest, speed 0.077 m/s > 0.05 m/s between 2 and 2.5 s",
     "sphere_grid": "measured: anchor error 3.4 cm > 1 cm within 1 s",
     "ragdoll_impact_100": "measured: joints pulled apart at impact, anchor error 0.75 m > 5 cm",
@@ -122,7 +121,6 @@ for _n in ("mass_ratio_sandwich", "ragdoll_impact_100"):
 #: the quick duration is a miss of the full duration too.
 SLOW_XFAIL = {
     "mass_ratio_sandwich": "measured (quick run): penetration 3.3 cm > 2 cm; not at rest: 0.36 m/s > 0.05 m/s after 1 s",
-    "ball_and_chain": "measured (quick run): anchor error 1.6 cm > 1 cm",
     "stack_20": "measured (quick run): not at rest: 0.14 m/s > 0.05 m/s after 2 s",
     "overlap_column": "measured (quick run): a body at 5.4 m/s > 2 m/s; not at rest: 1.7 m/s > 0.1 m/s "
                       "after 2.5 s",
@@ -134,7 +132,6 @@ SLOW_XFAIL = {
 }
 for _n in ("mass_ratio_sandwich", "stack_20", "overlap_column", "sphere_grid", "ragdoll_impact_100"):
     SLOW_XFAIL[_n + "_far"] = SLOW_XFAIL[_n]
-SLOW_XFAIL["ball_and_chain_far"] = "measured (full run): anchor error 3.4 cm > 1 cm within 10 s"
 SLOW_XFAIL["ragdoll_pile_10_far"] = "measured (quick run): anchor error 2.3 cm > 1 cm"
 SLOW_XFAIL["pyramid_10"] = ("measured (full run): not at rest, the pyramid sways in its thin direction from 2 s "
                             "on, top box at 0.23 m/s by 7.5 s (bound 0.05 m/s); gone with contact_damping_ratio "
