@@ -16,6 +16,14 @@ with half-angles (cone_y, cone_z) over the swing vector φ·(d_y, d_z).
 
 Constraints are split into colours at build time (no dynamic body twice in a
 colour); each colour is one vectorised sweep over worlds × joints.
+
+Softness: the tree solve (``_TreeSolver``) is exact, but Gauss-Seidel rows
+solved after it (contacts, loop-closing joints, limits outside the tree) see
+one body's mass and fight rigid joints, so the tree joints of an articulation
+that such rows act on are soft (``joint_hertz``); those of an articulation
+nothing else acts on, a pendulum or a chain in the air, are rigid with
+geometric stiffness (``free_joint_hertz``, ``free_joint_geometric_stiffness``),
+chosen per world and step.
 """
 
 from __future__ import annotations
