@@ -79,7 +79,7 @@ class Settings:
     free_joint_hertz: the same for an articulation nothing else acts on (a
         pendulum, a chain in the air); default inf, rigid: a soft pendulum's
         period was 0.34% long and it lost 9% of its energy in 60 s (rigid:
-        0.006% and 0.5%), and a 100:1 ball and chain opened by 2.5 cm (rigid
+        under 0.04% and 0.5%), and a 100:1 ball and chain opened by 2.5 cm (rigid
         with geometric stiffness: 4 mm).
     free_joint_geometric_stiffness: add geometric stiffness (below) to the
         joints of those free articulations; on by default: rigid joints
