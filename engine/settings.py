@@ -17,7 +17,9 @@ JOINT_SOLVERS = ("tree", "gauss_seidel")
 #: joints with their limits inside the tree solve, at 16 substeps. Measured
 #: (tests/engine/test_joints.py, benchmarks.accuracy; figures in the README):
 #: humanoid in free fall under bang-bang maximum torques for 10 s: anchor
-#: error under 1 mm and limits within 0.55° (seeds 1, 2). At 12 substeps it
+#: error under 1 mm and limits within 0.92° (seeds 1, 2; without limit rows
+#: outside the tree the humanoid in the air is a free articulation and gets
+#: geometric stiffness: without it 0.52°). At 12 substeps it
 #: held 0.7° until the joint dampers stopped absorbing motor torque; with the
 #: torques in full, 12 substeps let the limits pass by 3.5-3.9° (8 substeps,
 #: before: 1.5-2.4°: a light foot crosses its swing cone within a substep).
