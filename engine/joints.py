@@ -977,7 +977,9 @@ class _TreeSolver:
             scale = np.where(trG > cap, cap / np.where(trG > cap, trG, 1.0), 1.0)
             I = I + G * scale[..., None, None]
             inv = js._iinv.copy()
-            inv[:, b] = sym3_inverse(I)
+            # Bodies without added stiffness keep their inverse as computed (bit
+            # for bit, so a world reads the same stepped alone or in a batch).
+            inv[:, b] = np.where((trG > 0)[..., None, None], sym3_inverse(I), inv[:, b])
             # Every joint row (warm start, limits, tree) uses the same metric.
             js._iinv = self.iinv = inv
         M[..., 3:, 3:] = I

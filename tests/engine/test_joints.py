@@ -412,3 +412,29 @@ def test_accurate_preset_pendulum_energy_drift_under_1_percent_over_60_s():
     for _ in range(int(60 / model.settings.dt)):
         e.step(model, state)
     assert abs(total_energy(model, state)[0] - e0) / scale < 0.01
+
+
+def test_a_world_in_contact_steps_alone_as_beside_a_free_one():
+    # The tree joints' softness is chosen per world (soft where a contact acts
+    # on the articulation, rigid with geometric stiffness where nothing does);
+    # a world must step bit for bit the same alone as in a batch whose other
+    # world takes the other choice.
+    b = e.SceneBuilder()
+    b.add_ground()
+    q = quat_from_axis_angle(Y, math.pi / 2)
+    for i in range(4):
+        b.add_body(f"l{i}", e.Capsule(0.04, 0.1), mass=10.0 if i == 3 else 1.0, position=(0.3 * i, 0, 0.045),
+                   orientation=q)
+    for i in range(1, 4):
+        b.add_ball(f"j{i}", f"l{i - 1}", f"l{i}", anchor=(0.3 * i - 0.15, 0, 0.045))
+    model = b.build()
+    batch = model.initial_state(2)
+    batch.position[1, model.dynamic, 2] += 5.0  # world 1 in the air: a free articulation
+    batch.angular_velocity[:, model.dynamic] = (0.0, 0.0, 3.0)
+    alone = [batch.select([0]), batch.select([1])]
+    for _ in range(30):
+        e.step(model, batch)
+        for s in alone:
+            e.step(model, s)
+    assert alone[0].equal(batch.select([0])) and alone[1].equal(batch.select([1]))
+    assert batch.position[1, model.dynamic, 2].min() > 1.0  # world 1 never touched the ground
