@@ -47,16 +47,19 @@ def measured_period(model, periods=4.0, expected=1.0):
     return 2 * np.mean(np.diff(tc))
 
 
-def test_compound_pendulum_small_angle_period_within_0_2_percent():
+def test_compound_pendulum_small_angle_period_within_0_1_percent():
+    # Measured 0.040% (rigid joints out of contact; soft 60 Hz joints: 0.014%).
     model, small, _ = compound_pendulum(0.05)
     period = measured_period(model, expected=small)
-    assert abs(period - small) / small < 0.002
+    assert abs(period - small) / small < 0.001
 
 
-def test_compound_pendulum_90_degree_period_within_0_5_percent_of_elliptic():
+def test_compound_pendulum_90_degree_period_within_0_1_percent_of_elliptic():
+    # Measured 0.033% over 4 periods (soft 60 Hz joints: 0.026%, but they lose
+    # 9% of the energy in 60 s, and the period with it).
     model, _, exact = compound_pendulum(math.pi / 2)
     period = measured_period(model, expected=exact)
-    assert abs(period - exact) / exact < 0.005
+    assert abs(period - exact) / exact < 0.001
 
 
 def double_pendulum(**settings):
