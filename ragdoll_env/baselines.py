@@ -17,9 +17,10 @@ env and the SB3 VecEnv alike. Build one from any of them with
 * :class:`PendulumPD` — pendulums: a PD on the hinge angles.
 * :class:`StandingPD` — Balance: holds the standing pose (every joint angle
   0) with a PD per actuated axis on top of gravity compensation and a
-  centre-of-mass balance term (see the class); it stands through whole 20 s
-  episodes without pushes, survives single 10 N·s pushes, and lasts 9 s on
-  average under the default pushes (figures in the README).
+  centre-of-mass balance term and frontal-plane load sharing between the
+  legs (see the class); it stands through whole 20 s episodes without
+  pushes, survives single 10 and 15 N·s pushes from most directions, and
+  12 of 16 episodes last the full 20 s under the default pushes.
 
 scipy is optional: with it the LQR's Riccati equation is solved by
 ``scipy.linalg.solve_discrete_are``, without it by fixed-point iteration.
@@ -308,14 +309,44 @@ class StandingPD(Controller):
       and G are moved to the hips' ``swing_z`` (for the legs swaying sideways
       as a parallelogram, ankle swing_z = -hip swing_z, so the work is the
       same): the hips shift the load between the feet instead.
+    * Load sharing (``load_sharing``): S and G hold half of the trunk on each
+      leg, but a sideways correction moves the load onto one foot. The roll
+      moment asked of the ground (the two ankle ``swing_z`` support torques
+      before the move), M, puts the centre of pressure p = M / (m g) beside
+      the feet's midpoint; foot i, at y_i = ±d (d = 8.7 cm) across from it,
+      must then carry the share w_i = 1/2 + p y_i / (2 d²), clipped to
+      [0, 1], of the weight, and every support row of leg i (hip, knee,
+      ankle; S and G terms) is scaled by 2 w_i: the loaded leg holds the
+      whole trunk, the unloaded one is left alone. Without it, a sideways
+      push (15 N·s at the chest) shifted 90-100 % of the load onto the foot
+      on the side it went to within 2 steps, and the other leg's hip, still
+      carrying its half of the moved rows, swung that unloaded foot in
+      under the body (it slid 4-5 cm inwards) while the trunk rolled over
+      the stance hip; the body fell 1-2 s after the push. Measured with the
+      push trials above (seed 3), without -> with: 15 N·s kept 8 -> 15 of
+      16 (every lateral and diagonal push at the pelvis, and all but one at
+      the chest), 20 N·s 2 -> 5 of 16; 10 N·s and no push stay 16 of 16;
+      under the default pushes (16 episodes of 20 s, seed 0) 13 -> 4
+      episodes end in a fall (mean time standing 12.8 -> 17.4 s). Not
+      helping in the same trials: a world-frame roll PD on the pelvis (or
+      the trunk) through the hips
+      (kp 100-600 N·m/rad: 5-7 instead of 8 of 16 at 15 N·s; roll-rate
+      damping of 15 N·m·s/rad made the light pelvis oscillate and every
+      world fell without a push, 3-4 was harmless and useless), a
+      capture-point ankle roll term on the stance foot, capping the hips'
+      share of the moved rows (4-9 of 16), scaling the lateral field
+      (0.5-2x), stiffer spine roll, keying the shares on ``foot_contacts``
+      (a world fell before any push).
 
     gains: overrides of :data:`STANDING_GAINS` by joint name ("knee", ...);
     scale: multiplies every kp and kd (not the gravity and balance terms).
     gravity, balance: switch the S g + G q and the f terms off.
+    load_sharing: False keeps every leg row at half the load (the controller
+    before load sharing).
     """
 
     def __init__(self, env, gains=None, scale=1.0, com_gains=(800.0, 240.0), com_target=(-0.02, 0.0),
-                 knee_lock=-0.1, gravity=True, balance=True):
+                 knee_lock=-0.1, gravity=True, balance=True, load_sharing=True):
         super().__init__(env)
         if not isinstance(self.task, BalanceTask):
             raise TypeError("StandingPD drives Balance-v0")
@@ -335,7 +366,7 @@ class StandingPD(Controller):
             q_ref.append(knee_lock if key == "knee" else 0.0)
             joint_of.append(joint)
         self.kp, self.kd, self.q_ref = np.array(kp), np.array(kd), np.array(q_ref)
-        self.gravity, self.balance = bool(gravity), bool(balance)
+        self.gravity, self.balance, self.load_sharing = bool(gravity), bool(balance), bool(load_sharing)
         self.kc, self.dc = (float(v) for v in com_gains)
         self.com_target = np.array([*com_target, 0.0], dtype=float)[:3]
         self.mass = float(np.where(model.dynamic, model.mass, 0.0)[task.humanoid_bodies].sum())
@@ -367,6 +398,22 @@ class StandingPD(Controller):
                     tau[r] = S[r] @ math3d.quat_rotate(q[leg[r]], math3d.quat_rotate_inv(quat[leg[r]], self.g))
                 loads.append(tau)
             self.G[:, k] = (loads[0] - loads[1]) / (2 * eps)
+        # Frontal-plane load sharing (see the class docstring). row_foot[k]: foot_contacts slot of the leg
+        # of row k (-1: trunk, head, arms); ankle_roll[i]: the ankle swing_z row of foot slot i, whose
+        # support rows S_roll, G_roll (kept before they move to the hips) give the roll moment the
+        # feet are asked for; foot_side[i]: foot i's offset (m) from the feet's midpoint towards the
+        # left of the pelvis at the standing pose.
+        self.row_foot = np.array([slot[int(f)] if f >= 0 else -1 for f in leg])
+        self.ankle_roll = np.array([k for i in range(len(task.feet)) for k, act in enumerate(model.actuators)
+                                    if self.ankle_foot[k] == i and act.axis == 2])
+        self.S_roll, self.G_roll = self.S[self.ankle_roll].copy(), self.G[self.ankle_roll].copy()
+        left = math3d.quat_rotate(self.pelvis_build, np.array([0.0, 1.0, 0.0]))
+        feet_pos = pos[task.feet]
+        self.foot_side = (feet_pos - feet_pos.mean(axis=0)) @ left
+        # A field towards the left asks the ankles for a moment that moves the centre of pressure left:
+        # roll_sign turns the moment into "towards the left" whatever the joint frames' conventions.
+        self.roll_sign = float(np.sign(self.S_roll.sum(axis=0) @ left))
+        self.weight = self.mass * float(np.linalg.norm(self.g))
         names = list(self.core.actuator_names)
         for s in "lr":
             ankle, hip = names.index(f"{prefix}ankle_{s}:swing_z"), names.index(f"{prefix}hip_{s}:swing_z")
@@ -393,10 +440,33 @@ class StandingPD(Controller):
             legs = math3d.quat_rotate(build, math3d.quat_rotate_inv(rot, field)) + self.g
             support = np.where(self.leg_rows, legs @ self.S.T, trunk @ self.S.T) + q @ self.G.T
         else:
-            support = math3d.quat_rotate(build, math3d.quat_rotate_inv(rot, field)) @ self.S.T
+            legs = math3d.quat_rotate(build, math3d.quat_rotate_inv(rot, field))
+            support = legs @ self.S.T
+        if self.load_sharing:
+            support = support * self._leg_loads(legs, q)
         # A foot off the ground carries nothing: its ankle's support torques would only flip it.
         touching = np.concatenate([obs[:, self._feet], np.ones((obs.shape[0], 1))], axis=1)[:, self.ankle_foot]
         return (tau + support * touching) / self.core.max_torque
+
+    def _leg_loads(self, legs, q):
+        """(W, A) factors on the support rows: 2 w_i on the rows of leg i, 1 elsewhere.
+
+        The roll moment the field and gravity ask of the ground, M (N·m, the
+        two ankle ``swing_z`` support torques, before they moved to the
+        hips), puts the centre of pressure p = M / (m g) (m) towards the left
+        of the feet's midpoint; foot i (at ±d from it) must carry the share
+        w_i = 1/2 + p y_i / (2 d²), clipped to [0, 1], of the body weight.
+        """
+        moment = legs @ self.S_roll.T
+        if self.gravity:
+            moment = moment + q @ self.G_roll.T
+        cop = self.roll_sign * moment.sum(axis=1) / self.weight
+        d2 = self.foot_side ** 2
+        share = np.clip(0.5 + cop[:, None] * self.foot_side / (2.0 * d2), 0.0, 1.0)  # (W, feet)
+        factor = np.ones((legs.shape[0], self.num_actuators))
+        legs_rows = self.row_foot >= 0
+        factor[:, legs_rows] = 2.0 * share[:, self.row_foot[legs_rows]]
+        return factor
 
 
 BASELINES = {"zero": ZeroTorque, "pd": None, "lqr": LQR, "standing_pd": StandingPD, "pendulum_pd": PendulumPD}

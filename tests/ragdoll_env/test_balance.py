@@ -296,3 +296,28 @@ def test_pushes_are_counted_as_survived_with_the_pd():
         if term:
             break
     assert info["pushes"] >= 2 and info["pushes_survived"] >= 1
+
+
+@pytest.mark.parametrize("load_sharing", [True, False])
+def test_standing_pd_shares_the_load_to_survive_sideways_pushes(load_sharing):
+    """contacts: 15 N·s sideways at the pelvis (both ways) and at the chest;
+    with the legs' support rows scaled by the load each foot must carry, the
+    PD stands 3.3 s later (measured: every lateral pelvis push and the chest
+    push survive); without it the unloaded leg's hip swings its foot in under
+    the body and each of them falls (measured 1.8-2.2 s after the push)."""
+    from ragdoll_env.sb3 import make_sb3_vec_env
+
+    venv = make_sb3_vec_env("Ragdoll/Balance-v0", num_envs=3, seed=3, push_strength=0.0)
+    core = venv.core
+    pd = StandingPD(venv, load_sharing=load_sharing)
+    h = core.task.humanoid
+    pushes = [("pelvis", (0.0, 15.0, 0.0)), ("pelvis", (0.0, -15.0, 0.0)), ("chest", (0.0, -15.0, 0.0))]
+    obs = venv.reset()
+    alive = np.ones(3, dtype=bool)
+    for k in range(120):
+        if k == 20:
+            for w, (body, impulse) in enumerate(pushes):
+                core.push(w, core.model.body_index(h.name(body)), np.array(impulse))
+        obs, _, done, _ = venv.step(pd.act(obs))
+        alive &= ~done
+    assert alive.all() if load_sharing else not alive.any(), f"standing: {alive}"
