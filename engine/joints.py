@@ -395,7 +395,7 @@ class JointSet:
         (rigid, with geometric stiffness: 0.03% and under 1%)."""
         t = self.tree
         s = self.settings
-        hit = np.broadcast_to(t.gs_touched, (1 if touching is None else touching.shape[0],) + t.gs_touched.shape).copy()
+        hit = np.tile(t.gs_touched, (1 if touching is None else touching.shape[0], 1))  # (W or 1, articulations + 1)
         if touching is not None:
             w, body = np.nonzero(touching)
             hit[w, t.body_component[body]] = True

@@ -54,14 +54,16 @@ def step(model, state, control: Control | None = None):
     s = model.settings
     h = s.dt / s.substeps
     events = []
-    constraints = [c for c in (model.joints, model.contacts) if c is not None and c.has_constraints]
+    joints, contacts = (c if c is not None and c.has_constraints else None for c in (model.joints, model.contacts))
+    constraints = [c for c in (joints, contacts) if c is not None]
     passive = model.joints is not None and model.joints.has_passive
+    # Contacts first: the joints choose their softness from the bodies in contact.
     touching = None
-    if model.contacts is not None and model.contacts.has_constraints:
-        model.contacts.begin_step(model, state, h)
-        touching = model.contacts.bodies_in_contact(state)
-    if model.joints is not None and model.joints.has_constraints:
-        model.joints.begin_step(model, state, h, touching)
+    if contacts is not None:
+        contacts.begin_step(model, state, h)
+        touching = contacts.bodies_in_contact(state)
+    if joints is not None:
+        joints.begin_step(model, state, h, touching)
     for _ in range(s.substeps):
         if passive:
             # Passive joint springs and dampers act on the constrained velocities of
