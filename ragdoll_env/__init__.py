@@ -6,7 +6,7 @@ Importing this package registers, under the namespace ``Ragdoll``:
 ``Ragdoll/InvertedPendulum-v0``        one pole on a torque-limited hinge, 1000 steps of 0.04 s
 ``Ragdoll/InvertedDoublePendulum-v0``  two links (ankle and hip), torques at both, 1000 steps
 ``Ragdoll/Balance-v0``                 the humanoid standing on the ground through random pushes,
-                                       600 steps of 1/30 s (20 s)
+                                       1200 steps of 1/60 s (20 s)
 =====================================  ===========================================================
 
 each with an ``entry_point`` (:mod:`ragdoll_env.single`) and a native batched

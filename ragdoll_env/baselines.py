@@ -18,10 +18,11 @@ env and the SB3 VecEnv alike. Build one from any of them with
 * :class:`StandingPD` — Balance: holds the standing pose (every joint angle
   0) with a PD per actuated axis on top of gravity compensation and a
   centre-of-mass balance term and frontal-plane load sharing between the
-  legs (see the class); it stands through whole 20 s episodes without
-  pushes, survives single 10 and 15 N·s pushes from most directions, and
-  half or more of its 20 s episodes under the default pushes (12 of 16 in
-  one trial, 10 of 20 in ``training.evaluate``; figures in the README).
+  legs (see the class); at Balance's 60 Hz control it stands through whole
+  20 s episodes without pushes, survives single pushes of 10 and 15 N·s from
+  every direction, 13 of 16 at 20 N·s and 11 of 16 at 25 N·s (8 directions,
+  chest and pelvis), and about 95% of its 20 s episodes under the default
+  pushes (figures in the README).
 
 scipy is optional: with it the LQR's Riccati equation is solved by
 ``scipy.linalg.solve_discrete_are``, without it by fixed-point iteration.
@@ -185,24 +186,26 @@ class LQR(Controller):
 #: which cancels the gravity stiffness (knee 185, ankle 334, hip 69, lower
 #: spine 79 N·m/rad at the standing pose), so they only have to hold the pose
 #: against disturbances. The light bones bound them: an explicit PD held over a
-#: 1/30 s step oscillates and diverges at larger kd·Δt/I or kp·Δt²/I, and a
+#: control step Δt oscillates and diverges at larger kd·Δt/I or kp·Δt²/I, and a
 #: foot rocking on its edge has little inertia, so the ankles' own gains are
 #: small: balance comes from the centre-of-mass term. The knees are stiff (the
-#: limit at 0 stops them on the other side). Measured with
-#: benchmarks-style push trials (16 worlds, 8 directions, chest and pelvis):
-#: all the other gains at 1.0x the table stand and survive 10 N·s pushes; at
-#: 3.3x (the table before the engine passed motor torques on through damped
-#: joints) every world fell, even without pushes.
+#: limit at 0 stops them on the other side). The table is for Balance's 60 Hz
+#: control: it is twice the table tuned for 30 Hz (frame_skip 2), which at
+#: 3.3x (before the engine passed motor torques on through damped joints) let
+#: every world fall even without pushes. Measured on the default pushes
+#: (40 episodes of 20 s, 60 Hz, with the balance gains below): 1.5x, 2x and
+#: 3x the 30 Hz table fell in 7, 6 and 9 (kc, dc = 1200, 300); 2.5x in 6
+#: (1200, 400).
 STANDING_GAINS = {
-    "spine_lower": ((12.6, 0.32), (31.5, 0.53), (31.5, 0.53)),
-    "spine_upper": ((10.5, 0.32), (21.0, 0.42), (21.0, 0.42)),
-    "neck": ((0.84, 0.03), (3.15, 0.084), (3.15, 0.084)),
-    "shoulder": ((1.5, 0.03), (9.0, 0.15), (9.0, 0.15)),
-    "elbow": (1.68, 0.042),
-    "wrist": ((0.15, 0.003), (0.6, 0.015), (0.6, 0.015)),
-    "hip": ((18.0, 0.3), (42.0, 0.63), (42.0, 0.63)),
-    "knee": (300.0, 3.0),
-    "ankle": ((1.2, 0.03), (18.0, 0.3), (12.0, 0.3)),
+    "spine_lower": ((25.2, 0.64), (63.0, 1.06), (63.0, 1.06)),
+    "spine_upper": ((21.0, 0.64), (42.0, 0.84), (42.0, 0.84)),
+    "neck": ((1.68, 0.06), (6.3, 0.168), (6.3, 0.168)),
+    "shoulder": ((3.0, 0.06), (18.0, 0.3), (18.0, 0.3)),
+    "elbow": (3.36, 0.084),
+    "wrist": ((0.3, 0.006), (1.2, 0.03), (1.2, 0.03)),
+    "hip": ((36.0, 0.6), (84.0, 1.26), (84.0, 1.26)),
+    "knee": (600.0, 6.0),
+    "ankle": ((2.4, 0.06), (36.0, 0.6), (24.0, 0.6)),
 }
 
 _LEG_PARTS = ("thigh", "shin", "foot")
@@ -294,17 +297,23 @@ class StandingPD(Controller):
       applied through every joint as a change of gravity would be (virtual
       model control: Pratt et al. 2001, Int. J. Robot. Res. 20(2):129). The
       ankle strategy and the whole-body inverted pendulum (m g h ≈ 670 N·m/rad
-      about the ankles) come out of it: kc h² ≈ 700 N·m/rad about the ankles.
+      about the ankles) come out of it: kc h² ≈ 1050 N·m/rad about the ankles.
       c_ref is 2 cm behind the foot centres (5 cm in front of the ankles):
       the standing pose puts the centre of mass 7 cm behind them, only 6 cm
       in front of the heel edges, and backward pushes tipped it over them.
     * An ankle's support terms act only while its foot touches the ground
       (``foot_contacts``): on a lifted foot they flipped it within 0.2 s.
-    * Tuned on push trials (16 worlds, pushes of 10, 15, 20 N·s in 8
-      directions at the chest and the pelvis, worlds standing 4 s later):
-      kc, dc = 800, 240 kept 16, 8 and 2 of 16; 400, 160 kept 13, 5 and 2;
-      1200, 300 let 6 of 16 fall even without a push; c_ref 5 cm behind (with
-      400, 160) kept 5 of 16 at 10 N·s.
+    * Tuned at 30 Hz control on push trials (16 worlds, pushes of 10, 15,
+      20 N·s in 8 directions at the chest and the pelvis, worlds standing 4 s
+      later): kc, dc = 800, 240 kept 16, 8 and 2 of 16; 400, 160 kept 13, 5
+      and 2; 1200, 300 let 6 of 16 fall even without a push; c_ref 5 cm
+      behind (with 400, 160) kept 5 of 16 at 10 N·s. Retuned for Balance's
+      60 Hz control on the default pushes (40 episodes of 20 s per seed set,
+      with the 60 Hz joint table): kc, dc = 1200, 400 fell in 4 of 40, 1600,
+      400 in 5 and 2000, 400 in 7 (the 30 Hz controller unchanged: 9 of 20);
+      c_ref 2 cm behind, 1 cm behind and at the foot centres fell in 6, 5
+      and 6 of 120 (three seed sets), 4 cm behind in 14 of 40, 2 cm in front
+      in 6 of 40.
     * Frontal plane: a foot cannot take more roll moment than half the body
       weight times its half width (18 N·m), so the ankle ``swing_z`` rows of S
       and G are moved to the hips' ``swing_z`` (for the legs swaying sideways
@@ -323,8 +332,8 @@ class StandingPD(Controller):
       on the side it went to within 2 steps, and the other leg's hip, still
       carrying its half of the moved rows, swung that unloaded foot in
       under the body (it slid 4-5 cm inwards) while the trunk rolled over
-      the stance hip; the body fell 1-2 s after the push. Measured with the
-      push trials above (seed 3), without -> with: 15 N·s kept 8 -> 15 of
+      the stance hip; the body fell 1-2 s after the push. Measured at 30 Hz
+      with the push trials above (seed 3), without -> with: 15 N·s kept 8 -> 15 of
       16 (every lateral and diagonal push at the pelvis, and all but one at
       the chest), 20 N·s 2 -> 5 of 16; 10 N·s and no push stay 16 of 16;
       under the default pushes (16 episodes of 20 s, seed 0) 13 -> 4
@@ -346,7 +355,7 @@ class StandingPD(Controller):
     before load sharing).
     """
 
-    def __init__(self, env, gains=None, scale=1.0, com_gains=(800.0, 240.0), com_target=(-0.02, 0.0),
+    def __init__(self, env, gains=None, scale=1.0, com_gains=(1200.0, 400.0), com_target=(-0.02, 0.0),
                  knee_lock=-0.1, gravity=True, balance=True, load_sharing=True):
         super().__init__(env)
         if not isinstance(self.task, BalanceTask):

@@ -74,7 +74,7 @@ def test_spaces_step_types_and_render_fps(env_id):
 def test_max_returns_are_documented_values():
     assert gym.make("Ragdoll/InvertedPendulum-v0").unwrapped.max_return == 1000.0
     assert gym.make("Ragdoll/InvertedDoublePendulum-v0").unwrapped.max_return == 10000.0
-    assert gym.make("Ragdoll/Balance-v0", substeps=1).unwrapped.max_return == 1800.0
+    assert gym.make("Ragdoll/Balance-v0", substeps=1).unwrapped.max_return == 3600.0
 
 
 def test_render_fps_follows_dt_and_frame_skip():
