@@ -150,7 +150,10 @@ def test_push_sweep_rows_for_agent_and_baselines(tmp_path):
     at each strength, counting the pushes it gave."""
     from training import push_sweep
 
-    cfg = {"env_kwargs": {"max_episode_steps": 90, "push_interval": [0.5, 0.5]},
+    from ragdoll_env.tasks import BalanceTask
+
+    step_s = BalanceTask.dt * BalanceTask.frame_skip
+    cfg = {"env_kwargs": {"max_episode_steps": int(round(3.0 / step_s)), "push_interval": [0.5, 0.5]},
            "ppo": {"n_steps": 32, "batch_size": 64, "n_epochs": 1},
            "eval": {"freq": 10_000, "episodes": 1, "num_envs": 1}, "checkpoint_freq": 10_000}
     path = tmp_path / "bal.json"
@@ -166,7 +169,7 @@ def test_push_sweep_rows_for_agent_and_baselines(tmp_path):
         (0.0, "agent"), (0.0, "standing_pd"), (15.0, "agent"), (15.0, "standing_pd")]
     for r in res["rows"]:
         assert r["episodes"] == 2 and 0.0 <= r["fall_rate"] <= 1.0
-        assert r["mean_length_s"] == pytest.approx(r["mean_length"] / 30)
+        assert r["mean_length_s"] == pytest.approx(r["mean_length"] * step_s)
         if r["strength"] == 0:
             assert r["pushes"] == 0
         else:  # a push every 0.5 s: at least one before the 3 s limit or a fall
