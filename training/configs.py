@@ -16,7 +16,11 @@ Each entry has:
   alone;
 * ``eval``: ``freq`` (timesteps between evaluations), ``episodes``,
   ``num_envs`` of the separate evaluation env;
-* ``checkpoint_freq``: timesteps between checkpoints.
+* ``checkpoint_freq``: timesteps between checkpoints;
+* ``policy_warmup_steps`` (optional, default 0): for the rollouts collected
+  in the first that many timesteps the PPO updates train the critic only
+  (the actor's parameters frozen), so the first policy updates follow
+  advantages of a fitted value function rather than of a random one.
 
 Starting points (RL Baselines3 Zoo, ``hyperparams/ppo.yml``):
 

@@ -90,6 +90,36 @@ def _make_callbacks(run: Path, cfg: dict, num_envs: int, eval_env, history: dict
     return ckpt, ev
 
 
+def actor_parameters(policy) -> list:
+    """The parameters of an SB3 ActorCriticPolicy's actor (policy layers, action
+    layer, log std), not the critic's (the features extractor has none)."""
+    import torch
+
+    params = [*policy.mlp_extractor.policy_net.parameters(), *policy.action_net.parameters()]
+    log_std = getattr(policy, "log_std", None)
+    return params + ([log_std] if isinstance(log_std, torch.nn.Parameter) else [])
+
+
+def policy_warmup_callback(steps: int):
+    """A callback freezing the actor for the first ``steps`` timesteps, so the
+    PPO updates of those rollouts train only the critic (the actor's
+    parameters get no gradient; the target_kl early stop does not trigger, as
+    the policy does not change). A residual policy's first advantages would
+    otherwise come from an untrained critic and push the PD off its tuning."""
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    class PolicyWarmup(BaseCallback):
+        def _on_rollout_end(self) -> None:  # just before PPO.train() on this rollout
+            frozen = self.model.num_timesteps <= steps
+            for p in actor_parameters(self.model.policy):
+                p.requires_grad_(not frozen)
+
+        def _on_step(self) -> bool:
+            return True
+
+    return PolicyWarmup()
+
+
 def read_evaluations(run) -> dict | None:
     """The EvalCallback history of a run as lists, or None if there is none yet."""
     path = Path(run) / C.EVAL_DIR / "evaluations.npz"
@@ -186,6 +216,9 @@ def train(args) -> dict:
         check_residual(cfg.get("residual"))
     except ValueError as exc:
         raise C.TrainingError(f"bad residual settings in the config: {exc}") from exc
+    warmup = cfg.get("policy_warmup_steps") or 0
+    if isinstance(warmup, bool) or not isinstance(warmup, int) or warmup < 0:
+        raise C.TrainingError(f"policy_warmup_steps must be a whole number of timesteps >= 0, got {warmup!r}")
     cfg["num_envs"] = num_envs
     run.mkdir(parents=True, exist_ok=True)
     run_cfg = {"env_id": env_id, "seed": seed, "num_envs": num_envs, "timesteps": total, "config": cfg,
@@ -228,8 +261,10 @@ def train(args) -> dict:
     remaining = total - start_steps
     history = read_evaluations(run) if args.resume else None
     if remaining > 0:
-        callbacks = _make_callbacks(run, cfg, num_envs, eval_env, history)
-        model.learn(total_timesteps=remaining, callback=list(callbacks), tb_log_name="PPO",
+        callbacks = list(_make_callbacks(run, cfg, num_envs, eval_env, history))
+        if warmup > model.num_timesteps:
+            callbacks.append(policy_warmup_callback(warmup))
+        model.learn(total_timesteps=remaining, callback=callbacks, tb_log_name="PPO",
                     reset_num_timesteps=not args.resume, progress_bar=not args.no_progress_bar)
     else:
         print(f"{run}: already at {start_steps} timesteps >= the requested {total}; nothing to do")

@@ -135,6 +135,37 @@ def test_residual_run_trains_and_evaluates_on_its_baseline(tmp_path, tiny_config
     assert "video_error" not in res and len(res["videos"]) == 1  # the single env acts the same way
 
 
+def test_policy_warmup_trains_the_critic_only(tmp_path, tiny_config):
+    """Within ``policy_warmup_steps`` the actor of a residual run stays as
+    built (zero action layer, initial log std) while the critic learns."""
+    import torch
+    from stable_baselines3 import PPO
+
+    cfg = json.loads(tiny_config.read_text())
+    cfg["residual"] = {"baseline": "lqr", "scale": 0.2}
+    cfg["ppo"] = {**cfg["ppo"], "policy_kwargs": {"log_std_init": -3.0}}
+    cfg["policy_warmup_steps"] = 512
+    path = tmp_path / "warmup.json"
+    path.write_text(json.dumps(cfg))
+    run = tmp_path / "warmup"
+    train.main([ENV, "--timesteps", "512", "--num-envs", "4", "--seed", "0", "--out", str(run),
+                "--config", str(path), "--no-progress-bar"])
+    policy = PPO.load(str(run / "final_model.zip"), device="cpu").policy
+    first = PPO.load(str(common.checkpoints(run)[0][1]), device="cpu").policy
+    assert all(torch.count_nonzero(p) == 0 for p in policy.action_net.parameters())
+    assert torch.allclose(policy.log_std, torch.full_like(policy.log_std, -3.0))
+    for a, b in zip(train.actor_parameters(policy), train.actor_parameters(first)):
+        assert torch.equal(a, b)
+    vf_final = torch.cat([p.flatten() for p in policy.value_net.parameters()])
+    vf_first = torch.cat([p.flatten() for p in first.value_net.parameters()])
+    assert not torch.equal(vf_final, vf_first)  # the critic was trained between the checkpoints
+
+    path.write_text(json.dumps({**cfg, "policy_warmup_steps": -1}))
+    with pytest.raises(SystemExit, match="policy_warmup_steps"):
+        train.main([ENV, "--timesteps", "64", "--out", str(tmp_path / "x"), "--config", str(path),
+                    "--no-progress-bar"])
+
+
 def test_bad_residual_config_is_a_clear_error(tmp_path):
     path = tmp_path / "bad.json"
     path.write_text(json.dumps({"residual": {"baseline": "mpc"}}))
