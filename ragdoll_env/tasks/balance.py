@@ -48,7 +48,7 @@ MuJoCo Humanoid-v5's 67 Hz). A torque held for a whole step is an explicit
 PD on the light bones (a 1 kg foot, an 8 kg pelvis), which oscillates once
 kd·Δt/I or kp·Δt²/I is too large: at 30 Hz the standing PD could not be
 stiff enough, and under the default pushes it fell in 11 of 20 episodes
-(and in 9 at 60 Hz with the same gains); tuned for 60 Hz it falls in 4 of 80.
+(and in 9 at 60 Hz with the same gains); tuned for 60 Hz it falls in 6 of 120.
 Reset: every joint angle component + uniform ±reset_noise_scale (0.02 rad,
 clipped to the limits), soles lowered onto the ground, whole-body horizontal
 velocity uniform ±reset_noise_scale m/s.
