@@ -96,7 +96,7 @@ CONFIGS = {
             # evaluations fell in 62% and 56% of episodes at 300k steps. Bounded to 0.1 of each
             # maximum torque, with twice the transitions per update and half the epochs, its
             # training return stayed flat over 800k steps, its evaluations (16 episodes)
-            # between 0 and 38% falls where the PD falls in about 5%: no better than the PD.
+            # between 0 and 38% falls where the PD falls in 5-12%: no better than the PD.
             "learning_rate": 3e-5,
             "target_kl": 0.01,
             "clip_range": 0.2,
