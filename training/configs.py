@@ -8,6 +8,9 @@ Each entry has:
   uses names for ``activation_fn``: "tanh", "relu", "elu");
 * ``normalize``: keyword arguments of ``VecNormalize`` for the training env;
 * ``env_kwargs``: keyword arguments given to the environment (``gym.make``);
+* ``train_env_kwargs`` (optional): merged over ``env_kwargs`` for the
+  training env only (e.g. harder pushes), while the evaluation env keeps
+  ``env_kwargs``;
 * ``residual`` (optional): ``{"baseline": name, "scale": s}``, optionally
   with ``"kwargs"`` (the baseline's keyword arguments) and ``"actuators"``
   (name parts: the policy acts on those joints only): the policy's action is

@@ -152,8 +152,9 @@ def _make_envs(env_id, cfg, num_envs, seed, run: Path, monitor_name: str):
     from ragdoll_env.sb3 import make_sb3_vec_env
 
     env_kwargs = dict(cfg.get("env_kwargs") or {})
+    train_kwargs = {**env_kwargs, **(cfg.get("train_env_kwargs") or {})}
     try:
-        venv = make_sb3_vec_env(env_id, num_envs=num_envs, seed=seed, **env_kwargs)
+        venv = make_sb3_vec_env(env_id, num_envs=num_envs, seed=seed, **train_kwargs)
         n_eval = int(cfg["eval"].get("num_envs", 1))
         eval_venv = make_sb3_vec_env(env_id, num_envs=n_eval, seed=seed + 100_000, **env_kwargs)
         venv = residual_vec_env(venv, cfg.get("residual"))

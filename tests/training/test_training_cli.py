@@ -166,6 +166,20 @@ def test_policy_warmup_trains_the_critic_only(tmp_path, tiny_config):
                     "--no-progress-bar"])
 
 
+def test_train_env_kwargs_change_the_training_env_only(tmp_path):
+    """``train_env_kwargs`` (e.g. harder pushes) reach the training env; the
+    evaluation env keeps ``env_kwargs``."""
+    cfg = merge(get_config(ENV), {"env_kwargs": {"max_episode_steps": 50},
+                                  "train_env_kwargs": {"max_episode_steps": 20}})
+    venv, eval_env, _ = train._make_envs(ENV, cfg, 2, 0, tmp_path, "train.monitor.csv")
+    try:
+        assert venv.get_attr("max_episode_steps", [0]) == [20]
+        assert eval_env.get_attr("max_episode_steps", [0]) == [50]
+    finally:
+        venv.close()
+        eval_env.close()
+
+
 def test_bad_residual_config_is_a_clear_error(tmp_path):
     path = tmp_path / "bad.json"
     path.write_text(json.dumps({"residual": {"baseline": "mpc"}}))
