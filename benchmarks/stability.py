@@ -81,6 +81,7 @@ def main(argv=None) -> int:
         ("pen_late", lambda r: _fmt(r["max_penetration_after"])),
         ("v_rest", lambda r: _fmt(r["rest_speed_max"])),
         ("v_max", lambda r: _fmt(r["max_speed_all"])),
+        ("v_fling", lambda r: _fmt(r["max_fling_speed"])),
         ("nan", lambda r: "yes" if r["nan"] else "no"),
         ("wall (s)", lambda r: _fmt(r["wall_time"])),
     ]
