@@ -109,12 +109,10 @@ FAST = {
 
 #: measured misses of the fast part (python -m pytest tests/stability, this checkout)
 FAST_XFAIL = {
-    "mass_ratio_sandwich": "measured: penetration 3.3 cm > 2 cm; still moving at 0.36 m/s after 1 s",
-    "stack_5": "measured: not at rest, speed 0.077 m/s > 0.05 m/s between 2 and 2.5 s",
+    "mass_ratio_sandwich": "measured: still moving at 0.14 m/s after 1 s (penetration 1.3 cm within 2 s)",
     "sphere_grid": "measured: anchor error 3.4 cm > 1 cm within 1 s",
     "ragdoll_impact_100": "measured: joints pulled apart at impact, anchor error 0.75 m > 5 cm",
     "large_dt_ragdoll": "measured: anchor error 5.5 cm > 1 cm",
-    "large_dt_stack": "measured: not at rest, speed 0.059 m/s > 0.05 m/s between 2 and 3 s",
 }
 for _n in ("mass_ratio_sandwich", "ragdoll_impact_100"):
     FAST_XFAIL[_n + "_far"] = FAST_XFAIL[_n]
@@ -123,14 +121,14 @@ for _n in ("mass_ratio_sandwich", "ragdoll_impact_100"):
 #: bound is a maximum over the run (the rest bound over [rest_time, end]), so a miss within
 #: the quick duration is a miss of the full duration too.
 SLOW_XFAIL = {
-    "mass_ratio_sandwich": "measured (quick run): penetration 3.3 cm > 2 cm; not at rest: 0.36 m/s > 0.05 m/s after 1 s",
-    "stack_20": "measured (quick run): not at rest: 0.14 m/s > 0.05 m/s after 2 s; full run: the column "
-                "leans over, its top box 0.6 m off the axis and moving at 0.25 m/s by 10 s",
+    "mass_ratio_sandwich": "measured (full run): penetration 2.9 cm > 2 cm; not at rest: 0.34 m/s > 0.05 m/s after 1 s",
+    "stack_20": "measured (full run): not at rest: 0.082 m/s > 0.05 m/s between 2 and 10 s: the column "
+                "buckles slowly (at 60 Hz a contact's rocking stiffness, about 4700 N·m/rad, is below the "
+                "about 5400 a column of 20 such boxes needs; 8 substeps at 120 Hz hold it)",
     "ragdoll_pile_10": "measured (quick run): anchor error 2.3 cm > 1 cm",
     "sphere_grid": "measured (quick run): anchor error 3.8 cm > 1 cm",
     "ragdoll_impact_100": "measured (quick run): joints pulled apart at impact, anchor error 51 cm > 5 cm",
     "large_dt_ragdoll": "measured (quick run): anchor error 5.5 cm > 1 cm",
-    "large_dt_stack": "measured (quick run): not at rest: 0.069 m/s > 0.05 m/s after 2 s",
 }
 for _n in ("mass_ratio_sandwich", "stack_20", "sphere_grid", "ragdoll_impact_100"):
     SLOW_XFAIL[_n + "_far"] = SLOW_XFAIL[_n]
