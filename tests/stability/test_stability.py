@@ -136,6 +136,7 @@ SLOW_XFAIL["ragdoll_pile_10_far"] = "measured (quick run): anchor error 2.3 cm >
 SLOW_XFAIL["pyramid_10"] = ("measured (full run): not at rest, the pyramid sways in its thin direction from 2 s "
                             "on, top box at 0.23 m/s by 7.5 s (bound 0.05 m/s); gone with contact_damping_ratio "
                             "1-3 or 8 substeps")
+SLOW_XFAIL["pyramid_10_far"] = SLOW_XFAIL["pyramid_10"]  # measured: the same sway, 0.25 m/s after 1.5 s
 
 
 @pytest.mark.parametrize("name", list(FAST))
