@@ -237,8 +237,8 @@ class ContactRows:
             # points' residual speed in a pattern fixed by that order, a torque
             # bias on both boxes that made a stack of 5 circle at 0.08 m/s at the
             # defaults (at rest with 2 passes). Rows on a static body keep one
-            # pass: a second one there changed the balance controller's falls
-            # under pushes (feet on the ground) from 6 to 12 of 120 episodes.
+            # pass: a second one there changed the standing PD's falls under the
+            # Balance pushes (feet on the ground) from 14 to 21 of 200 episodes.
             paired = self.dyn_a[rows] & self.dyn_b[rows]
             passes = NORMAL_PASSES if paired.any() else 1
             for k in range(passes * valid.shape[1]):
