@@ -345,8 +345,8 @@ def overlap_recovery(offset=(0, 0, 0), base=4, depth=2, overlap=0.25):
 def overlap_column(offset=(0, 0, 0), n=20, seed=0):
     """Harsher than Solver2D's: 20 boxes created deep inside each other (centres within
     a 0.6 m x 0.6 m x 2 m column, random orientations). Pushed apart, the upper
-    boxes fall up to 2 m onto the others (5.4 m/s, all of it the fall: the fling
-    speed stays under 2 m/s) and tumble off the pile until about 4 s, so rest is
+    boxes fall up to 2 m onto the others (5.4 m/s, most of it the fall: the fling
+    speed is about 2 m/s) and tumble off the pile until about 4 s, so rest is
     asked from 4.5 s."""
     o = np.asarray(offset, float)
     rng = np.random.default_rng(seed)

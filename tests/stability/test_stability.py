@@ -205,10 +205,8 @@ def test_replay_is_bit_identical():
 
 # ------------------------------------------------------------------ the fling measure
 def _one_body_case(position, velocity):
-    import engine as e
-
     b = sc._builder(np.zeros(3))
-    b.add_body("box", e.Box((0.25, 0.25, 0.25)), mass=1.0, position=position, velocity=velocity)
+    b.add_body("box", sc.e.Box((0.25, 0.25, 0.25)), mass=1.0, position=position, velocity=velocity)
     return sc._make("one_box", "one box", b, np.zeros(3), duration=1.0, quick_duration=1.0)
 
 
