@@ -38,7 +38,7 @@ from .common import format_value, machine_note, print_table, write_json
 
 # ---------------------------------------------------------------- the grid
 DEFAULT = Settings()
-THESIS = dict(solver="thesis", integrator="euler")
+THESIS = dict(solver="thesis", integrator="euler", free_contact_relax_passes=0)  # the thesis method, fixed
 
 GRID = [
     ("default", {}),
@@ -49,6 +49,7 @@ GRID = [
     ("sub=8", dict(substeps=8)),
     ("it=2", dict(iterations=2)),
     ("it=4", dict(iterations=4)),
+    ("free relax=0", dict(free_contact_relax_passes=0)),
     ("euler", dict(integrator="euler")),
     ("rk4", dict(integrator="rk4")),
     ("dt=1/30 sub=1", dict(dt=1 / 30, substeps=1)),

@@ -166,6 +166,8 @@ class ContactRows:
         self.max_push_out = s.max_push_out
         self.slop = s.linear_slop
         self.colors = _color_rows(self.ka, self.kb, self.dyn_a, self.dyn_b, state.num_worlds * N)
+        self.dynamic = model.dynamic
+        self._free_colors = None
 
     # ------------------------------------------------------------------------
     def _gather(self, state, rows):
@@ -219,9 +221,19 @@ class ContactRows:
         d = (pb - self.xb0[rows])[:, None] + rb - self.rb[rows] - (pa - self.xa0[rows])[:, None] - ra + self.ra[rows]
         return self.sep0[rows] + dot(d, self.n[rows][:, None])
 
-    def solve(self, model, state, h, use_bias):
+    def free_colors(self, jointed):
+        """The colours restricted to rows whose dynamic bodies carry no joint
+        (``jointed``: (num_bodies,) bool), empty colours dropped; once per step."""
+        if self._free_colors is None:
+            held = jointed & self.dynamic
+            free = ~held[self.a] & ~held[self.b]
+            self._free_colors = [r for r in (rows[free[rows]] for rows in self.colors) if r.size]
+        return self._free_colors
+
+    def solve(self, model, state, h, use_bias, colors=None):
+        """One sweep over ``colors`` (default: every row), in colour order."""
         soft = self.soft
-        for rows in self.colors:
+        for rows in self.colors if colors is None else colors:
             va, wa, vb, wb = self._gather(state, rows)
             n = self.n[rows]
             t1, t2 = self.t1[rows], self.t2[rows]

@@ -157,6 +157,12 @@ class ContactSet:
         if self.rows is not None:
             self.rows.solve(model, state, h, use_bias)
 
+    def relax_free_bodies(self, model, state, h):
+        """One more relax pass over the rows whose bodies carry no joints
+        (``Settings.free_contact_relax_passes``)."""
+        if self.rows is not None:
+            self.rows.solve(model, state, h, use_bias=False, colors=self.rows.free_colors(self.jointed))
+
     def end_step(self, model, state, h, events):
         if self.rows is None:
             return

@@ -7,6 +7,7 @@
       prepare      constraint anchors and effective masses (if joints/contacts)
       substeps     integrate velocities (force effects); implicit velocity effects;
                    warm start + biased solve; integrate positions; relax solve
+                   (and further relax passes over the contacts of unjointed bodies)
       restitution  once, from the closing velocities before the solve
       end of step  breaking springs and joints, events, non-finite check
 
@@ -129,6 +130,9 @@ def _solve(model, state, constraints, h, use_bias):
     for _ in range(iterations):
         for c in constraints:
             c.solve(model, state, h, use_bias)
+    if not use_bias and model.contacts in constraints:
+        for _ in range(model.settings.free_contact_relax_passes):
+            model.contacts.relax_free_bodies(model, state, h)
 
 
 def _nonfinite_error(model, state, bad_worlds):

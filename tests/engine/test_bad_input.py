@@ -245,6 +245,8 @@ def test_empty_scene():
     (dict(dt=-0.01), "dt must be a positive finite number"),
     (dict(dt=math.nan), "dt must be a number"),
     (dict(substeps=0), "substeps must be an integer >= 1"),
+    (dict(free_contact_relax_passes=-1), "free_contact_relax_passes must be an integer >= 0"),
+    (dict(relax_iterations=1.5), "relax_iterations must be an integer >= 0"),
     (dict(integrator="leapfrog"), "unknown integrator 'leapfrog'"),
 ])
 def test_bad_settings(scene, changes, fragment):
