@@ -94,7 +94,8 @@ PRIMARY = {
 
 def settings_dict(label, s: Settings, **extra):
     d = {"label": label, "default": s == DEFAULT, "dt": s.dt, "substeps": s.substeps, "iterations": s.iterations,
-         "relax_iterations": s.relax_iterations, "integrator": s.integrator, "solver": s.solver,
+         "relax_iterations": s.relax_iterations, "free_contact_relax_passes": s.free_contact_relax_passes,
+         "integrator": s.integrator, "solver": s.solver,
          "joint_hertz": s.joint_hertz, "joint_damping_ratio": s.joint_damping_ratio,
          "free_joint_hertz": s.free_joint_hertz, "free_joint_geometric_stiffness": s.free_joint_geometric_stiffness,
          "joint_relax": s.joint_relax, "contact_hertz": s.contact_hertz,
