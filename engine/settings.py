@@ -45,9 +45,9 @@ class Settings:
         free bodies rocking. Measured at the defaults, without and with the
         pass: a stack of 5 boxes 0.025 -> 0.0003 m/s over 2-3 s; the 1 kg box
         between two 100 kg ones 0.34 -> 0.024 m/s over its 5 s (penetration
-        2.9 -> 0.95 cm);
-        the 10-row pyramid, which swayed at 0.25 m/s, 0.006 m/s; 20 boxes
-        created inside each other fling none faster than 1.2 m/s (2.0 before).
+        2.9 -> 0.95 cm); the 10-row pyramid, which swayed at 0.25 m/s,
+        0.006 m/s; 20 boxes created inside each other fling none faster than
+        1.2 m/s (2.0 before).
         It costs a scene of free boxes about 45% more per step (W = 1) and a
         scene without such rows nothing. 6 substeps rest those scenes as well
         at about the same cost, but every scene pays for them. Rows on a

@@ -1,9 +1,9 @@
 """Test ordering shared by every test directory.
 
 The slow selection is dominated by a few long runs; they are collected first so
-that with two workers (``python -m pytest -q -m slow -n 2 --dist worksteal``)
-one worker starts on the longest while the other works through the rest,
-instead of the longest starting last.
+that with two workers (``python -m pytest -q -m slow -n 2``, which hands out
+tests round-robin) the two longest start at once on different workers, and
+the shorter ones fill in around them instead of the longest starting last.
 """
 
 from __future__ import annotations
