@@ -8,12 +8,13 @@ the shorter ones fill in around them instead of the longest starting last.
 
 from __future__ import annotations
 
-#: Test functions started first, longest first (single-run wall times measured here:
-#: the 100,000-step maximum-torque ragdoll about 35-50 min, the 1,000-world soak
-#: replay about 9 min, the full 10-row pyramids about 3 min each).
+#: Test functions started first, longest first (wall times measured here with two
+#: workers on a shared machine: the 100,000-step maximum-torque ragdoll 39 min, the
+#: 1,000-world soak tests 10 min each, the full 10-row pyramids 5.5 min each).
 LONGEST_FIRST = (
     "test_max_torque_100k_steps",
     "test_soak_replay_bit_identical",
+    "test_soak_1000_worlds_1000_steps",
     "test_hard_case_full[pyramid_10]",
     "test_hard_case_full[pyramid_10_far]",
 )
