@@ -166,7 +166,6 @@ class ContactRows:
         self.max_push_out = s.max_push_out
         self.slop = s.linear_slop
         self.colors = _color_rows(self.ka, self.kb, self.dyn_a, self.dyn_b, state.num_worlds * N)
-        self.dynamic = model.dynamic
         self._free_colors = None
 
     # ------------------------------------------------------------------------
@@ -221,12 +220,12 @@ class ContactRows:
         d = (pb - self.xb0[rows])[:, None] + rb - self.rb[rows] - (pa - self.xa0[rows])[:, None] - ra + self.ra[rows]
         return self.sep0[rows] + dot(d, self.n[rows][:, None])
 
-    def free_colors(self, jointed):
-        """The colours restricted to rows whose dynamic bodies carry no joint
-        (``jointed``: (num_bodies,) bool), empty colours dropped; once per step."""
+    def free_colors(self, unjointed):
+        """The colours restricted to rows whose two bodies are static or carry
+        no joint (``unjointed``: (num_bodies,) bool), empty colours dropped;
+        computed once per step."""
         if self._free_colors is None:
-            held = jointed & self.dynamic
-            free = ~held[self.a] & ~held[self.b]
+            free = unjointed[self.a] & unjointed[self.b]
             self._free_colors = [r for r in (rows[free[rows]] for rows in self.colors) if r.size]
         return self._free_colors
 
