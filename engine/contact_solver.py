@@ -220,6 +220,10 @@ class ContactRows:
         d = (pb - self.xb0[rows])[:, None] + rb - self.rb[rows] - (pa - self.xa0[rows])[:, None] - ra + self.ra[rows]
         return self.sep0[rows] + dot(d, self.n[rows][:, None])
 
+    def separation(self, state):
+        """Current separation (rows, points) of every row, m."""
+        return self._separation(state, np.arange(self.w.size))
+
     def free_colors(self, unjointed):
         """The colours restricted to rows whose two bodies are static or carry
         no joint (``unjointed``: (num_bodies,) bool), empty colours dropped;

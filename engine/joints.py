@@ -36,6 +36,7 @@ import numpy as np
 from .coloring import color_pairs
 from .math3d import (sym3_inverse, clamp_norm, cross, quat_rotate_inv, dot, mat_vec, quat_conj, quat_mul, quat_rotate, sym3_solve,
                      quat_to_matrix, world_inv_inertia)
+from .joint_projection import project_joints
 from .soft import Softness, implicit_spring_impulse, make_soft
 from .state import Event
 
@@ -174,6 +175,11 @@ class JointSet:
             t.gs_touched[t.body_component[self.parent[gs_rows]]] = True
             t.gs_touched[t.body_component[self.child[gs_rows]]] = True
             t.gs_touched[-1] = False
+            # Articulations with loop-closing joints: not position-projected (engine.joint_projection).
+            t.loop_touched = np.zeros(t.num_components + 1, dtype=bool)
+            t.loop_touched[t.body_component[self.parent[~in_tree]]] = True
+            t.loop_touched[t.body_component[self.child[~in_tree]]] = True
+            t.loop_touched[-1] = False
         where = {int(j): i for i, j in enumerate(self.gs_limit)}
         self.passive_joints = np.flatnonzero((self.damping > 0) | (self.stiffness > 0))
         where_passive = {int(j): i for i, j in enumerate(self.passive_joints)}
@@ -671,6 +677,8 @@ class JointSet:
         self._limits = self._swing_twist = None
         if self.settings.solver == "thesis":
             self._project_positions(model, state)
+        elif self.tree is not None and self.settings.joint_projection_passes:
+            project_joints(self, model, state)
         if not self.breakable:
             return
         self._add_load(state)
@@ -985,9 +993,16 @@ class _TreeSolver:
         M[..., 3:, 3:] = I
         self.M = M
 
-    def jacobians(self, js, state, use_bias, bias_rate):
+    def jacobians(self, js, state, use_bias, bias_rate, velocity=True, max_push_out=None,
+                  max_angular_push_out=None):
         """Jacobian blocks (W, nj, 6, 6) of each tree joint wrt its sides a and b,
-        the row mask and the right-hand side J·u + bias·C."""
+        the row mask and the right-hand side J·u + bias·C (without ``velocity``:
+        bias·C alone); the bias is clamped to the joint push-out speeds unless
+        other limits are given."""
+        if max_push_out is None:
+            max_push_out = js.settings.joint_max_push_out
+        if max_angular_push_out is None:
+            max_angular_push_out = js.settings.joint_max_angular_push_out
         idx = self.joints
         a, b, fpw, fcw, ra, rb = js.frames(state, idx)
         shape = ra.shape
@@ -996,7 +1011,6 @@ class _TreeSolver:
         mask = np.empty((W, nj, 6))
         mask[..., :3] = act[..., None]
         mask[..., 3:] = act[..., None] * self.ang_mask
-        hinge = (self.kind == HINGE)[:, None, None]
         # Angular lock rows: hinge (0, y, z) of the parent frame, fixed I, ball none.
         E = np.zeros((W, nj, 3, 3))
         if self.hinges.size:
@@ -1011,24 +1025,33 @@ class _TreeSolver:
         J[..., 3:, 3:] = E
         J *= mask[..., None]
         Jb, Ja = J[0], np.negative(J[1], out=J[1])
-        va, vb = state.velocity[:, a], state.velocity[:, b]
-        wa, wb = state.angular_velocity[:, a], state.angular_velocity[:, b]
         r = np.empty((W, nj, 6))
-        r[..., :3] = vb + cross(wb, rb) - va - cross(wa, ra)
-        wrel = wb - wa
-        r[..., 3:] = mat_vec(E, wrel)
+        if velocity:
+            va, vb = state.velocity[:, a], state.velocity[:, b]
+            wa, wb = state.angular_velocity[:, a], state.angular_velocity[:, b]
+            r[..., :3] = vb + cross(wb, rb) - va - cross(wa, ra)
+            r[..., 3:] = mat_vec(E, wb - wa)
+        else:
+            r[...] = 0.0
         if use_bias and np.any(bias_rate):
-            xa, xb = state.position[:, a], state.position[:, b]
-            r[..., :3] += clamp_norm(bias_rate * (xb + rb - xa - ra), js.settings.joint_max_push_out)
-            ax_p = quat_rotate(fpw, np.broadcast_to(_EX, shape))
-            ax_c = quat_rotate(fcw, np.broadcast_to(_EX, shape))
-            herr = cross(ax_p, ax_c)
-            qd = quat_mul(fcw, quat_conj(fpw))
-            ferr = 2.0 * qd[..., 1:] * np.where(qd[..., 0:1] < 0, -1.0, 1.0)
-            aerr_vec = np.where(hinge[..., 0], herr, ferr)
-            r[..., 3:] += mat_vec(E, clamp_norm(bias_rate * aerr_vec, js.settings.joint_max_angular_push_out))
+            lin, ang = self._position_errors(state, a, b, fpw, fcw, ra, rb)
+            r[..., :3] += clamp_norm(bias_rate * lin, max_push_out)
+            r[..., 3:] += mat_vec(E, clamp_norm(bias_rate * ang, max_angular_push_out))
         r *= mask
         return a, b, Ja, Jb, mask, r
+
+    def _position_errors(self, state, a, b, fpw, fcw, ra, rb):
+        """The joints' position errors: anchor separation x_b + r_b - x_a - r_a (m)
+        and the angular error vector (rad) whose lock-row components the rows
+        hold at zero: hinge a_p × a_c of the two x axes, fixed 2 vec(q_c q_p*)."""
+        lin = state.position[:, b] + rb - state.position[:, a] - ra
+        shape = ra.shape
+        ax_p = quat_rotate(fpw, np.broadcast_to(_EX, shape))
+        ax_c = quat_rotate(fcw, np.broadcast_to(_EX, shape))
+        herr = cross(ax_p, ax_c)
+        qd = quat_mul(fcw, quat_conj(fpw))
+        ferr = 2.0 * qd[..., 1:] * np.where(qd[..., 0:1] < 0, -1.0, 1.0)
+        return lin, np.where((self.kind == HINGE)[:, None], herr, ferr)
 
     def limit_rows(self, js, state, h, use_bias):
         """Limit rows in the free angular slots of each tree joint: hinge slot 3
@@ -1159,8 +1182,9 @@ class _TreeSolver:
         """(J M⁻¹ Jᵀ)⁻¹ r over the rows in mask (others 0)."""
         return self._substitute(self._factor(Ja, Jb, mask), r)
 
-    def _factor(self, Ja, Jb, mask):
-        """Block LDLᵀ factors of [M Jᵀ; J 0] in leaves-first order.
+    def _factor(self, Ja, Jb, mask, M=None):
+        """Block LDLᵀ factors of [M Jᵀ; J 0] in leaves-first order (M: the
+        bodies' (W, tree bodies, 6, 6) metric, default their mass matrices).
 
         A body node's pivot is D_b = M_b - Σ_children J_pᵀ D_j⁻¹ J_p; a joint
         node's is D_j = diag(mask - 1) - J_c D_c⁻¹ J_cᵀ (its one child body c).
@@ -1176,7 +1200,7 @@ class _TreeSolver:
         Dinv, L = [], []
         for g in self.groups:
             if g.body:
-                Di = _inv_definite(self.M[:, g.ids] - acc_b[:, g.ids])
+                Di = _inv_definite((self.M if M is None else M)[:, g.ids] - acc_b[:, g.ids])
                 if g.has_parent:
                     Jg = Jc[:, g.pj]
                     Lg = _mm(Di, np.swapaxes(Jg, -1, -2))

@@ -247,6 +247,9 @@ def test_empty_scene():
     (dict(substeps=0), "substeps must be an integer >= 1"),
     (dict(free_contact_relax_passes=-1), "free_contact_relax_passes must be an integer >= 0"),
     (dict(relax_iterations=1.5), "relax_iterations must be an integer >= 0"),
+    (dict(joint_projection_passes=-2), "joint_projection_passes must be an integer >= 0"),
+    (dict(joint_projection_slop=-0.001), "joint_projection_slop must be a finite number >= 0"),
+    (dict(joint_projection_contact_weight=math.inf), "joint_projection_contact_weight must be a finite number >= 0"),
     (dict(integrator="leapfrog"), "unknown integrator 'leapfrog'"),
 ])
 def test_bad_settings(scene, changes, fragment):

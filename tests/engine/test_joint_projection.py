@@ -1,0 +1,132 @@
+"""Joint post-stabilisation (engine.joint_projection; Settings.joint_projection_*).
+
+The projection moves positions onto the tree joints at the end of a step: the
+anchors end within the slop, the velocities are the velocity solve's, worlds
+already within the slop and articulations with loop-closing joints keep their
+state bit for bit, and contacts near the ground hold their bodies in the
+projection's metric.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+
+import engine as e
+from benchmarks.scenes import RandomMaxTorque
+from engine.humanoid import add_humanoid
+from engine.math3d import quat_from_axis_angle
+
+
+def humanoid(position=(0.0, 0.0, 0.0), dt=1 / 60, **settings):
+    b = e.SceneBuilder(dt=dt, **settings)
+    b.add_ground()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        add_humanoid(b, position=position)
+    return b.build()
+
+
+def max_torque_anchor_error(model, steps, num_worlds=2, seed=3):
+    state = model.initial_state(num_worlds)
+    control = RandomMaxTorque(model, num_worlds, seed=seed)
+    worst = 0.0
+    for k in range(steps):
+        e.step(model, state, control(k, state))
+        worst = max(worst, float(model.joints.anchor_error(state).max()))
+    return worst
+
+
+def test_projection_holds_the_standing_humanoid_under_max_torques_within_the_slop():
+    # Measured (8 worlds x 200 steps at ACCURATE): 0.20 mm with the projection, 9.1 mm without.
+    accurate = humanoid(**e.ACCURATE)
+    assert accurate.settings.joint_projection_passes > 0
+    slop = accurate.settings.joint_projection_slop
+    assert max_torque_anchor_error(accurate, 40) < 1.05 * slop
+    without = accurate.with_settings(joint_projection_passes=0)
+    assert max_torque_anchor_error(without, 40) > 5 * slop
+
+
+def test_projection_moves_positions_not_velocities():
+    model = humanoid(joint_projection_passes=0, joint_projection_slop=1e-4)
+    projected = model.with_settings(joint_projection_passes=4)
+    control = RandomMaxTorque(model, 1, seed=1)
+    state = model.initial_state(1)
+    for k in range(20):  # let the soft joints stretch
+        e.step(model, state, control(k, state))
+    a, b = state.copy(), state.copy()
+    u = control(20, state)
+    e.step(model, a, u)
+    e.step(projected, b, u)
+    assert np.array_equal(a.velocity, b.velocity)
+    assert np.array_equal(a.angular_velocity, b.angular_velocity)
+    assert model.joints.anchor_error(a).max() > 1e-3
+    assert projected.joints.anchor_error(b).max() < 1.05e-4
+
+
+def pendulum_chain(**settings):
+    """Three 0.3 m links hanging from the world at 60° (a free articulation:
+    rigid tree joints, errors far below the slop)."""
+    b = e.SceneBuilder(**settings)
+    q = quat_from_axis_angle(np.array([0.0, 1.0, 0.0]), np.radians(60))
+    d = np.array([np.sin(np.radians(60)), 0.0, -np.cos(np.radians(60))]) * 0.3
+    prev = None
+    for i in range(3):
+        b.add_body(f"link{i}", e.Capsule(0.03, 0.12), mass=1.0, position=d * (i + 0.5), orientation=q)
+        b.add_ball(f"j{i}", prev, f"link{i}", anchor=tuple(d * i))
+        prev = f"link{i}"
+    return b.build()
+
+
+def test_worlds_within_the_slop_step_bit_identically():
+    off, on = pendulum_chain(), pendulum_chain(joint_projection_passes=4, joint_projection_slop=1e-3)
+    a, b = off.initial_state(1), on.initial_state(1)
+    for _ in range(120):
+        e.step(off, a)
+        e.step(on, b)
+    assert 0 < off.joints.anchor_error(a).max() < 1e-3
+    assert a.equal(b)
+
+
+def test_articulations_with_loop_closing_joints_are_not_projected():
+    """A ring of four links (three tree joints and one loop-closing joint)
+    pinned to the world: its projection would push the error into the loop
+    row, so it steps exactly as without projection."""
+    def ring(**settings):
+        b = e.SceneBuilder(**settings)
+        corners = [(0, 0, 0), (0.4, 0, 0), (0.4, 0, -0.4), (0, 0, -0.4)]
+        for i, c in enumerate(corners):
+            b.add_body(f"s{i}", e.Sphere(0.05), mass=1.0 if i else 10.0, position=c)
+        b.add_ball("pin", None, "s0", anchor=corners[0])
+        for i in range(4):
+            p, c = corners[i], corners[(i + 1) % 4]
+            b.add_ball(f"link{i}", f"s{i}", f"s{(i + 1) % 4}", anchor=tuple((np.add(p, c)) / 2))
+        return b.build()
+
+    off, on = ring(), ring(joint_projection_passes=4, joint_projection_slop=1e-6)
+    a, b = off.initial_state(1), on.initial_state(1)
+    for _ in range(60):
+        e.step(off, a)
+        e.step(on, b)
+    assert off.joints.anchor_error(a).max() > 1e-6
+    assert a.equal(b)
+
+
+def test_contacts_near_the_ground_hold_their_bodies_in_the_projection():
+    """A ragdoll dropped feet first from 0.5 m: without the contact term the
+    projection closes the stretched ankle by turning the light foot into the
+    ground (measured 135 mm deep; without projection 24 mm, with the term 14 mm)."""
+    def deepest(weight):
+        model = humanoid(position=(0, 0, 0.5), joint_projection_passes=4, joint_projection_slop=0.005,
+                         joint_projection_contact_weight=weight)
+        state = model.initial_state(1)
+        worst = 0.0
+        for _ in range(45):
+            e.step(model, state)
+            sep = state.contact_separation[np.isfinite(state.contact_separation)]
+            worst = max(worst, -float(sep.min()) if sep.size else 0.0)
+        return worst
+
+    assert deepest(1000.0) < 0.03
+    assert deepest(0.0) > 0.06
