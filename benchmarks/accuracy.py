@@ -98,7 +98,8 @@ def settings_dict(label, s: Settings, **extra):
          "integrator": s.integrator, "solver": s.solver,
          "joint_hertz": s.joint_hertz, "joint_damping_ratio": s.joint_damping_ratio,
          "free_joint_hertz": s.free_joint_hertz, "free_joint_geometric_stiffness": s.free_joint_geometric_stiffness,
-         "joint_relax": s.joint_relax, "contact_hertz": s.contact_hertz,
+         "joint_relax": s.joint_relax, "joint_projection_passes": s.joint_projection_passes,
+         "contact_hertz": s.contact_hertz,
          "thesis_baseline": s.solver == "thesis" and s.integrator == "euler"}
     d.update(extra)
     return d
