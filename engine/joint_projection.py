@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .math3d import cross, mat_vec, quat_exp_integrate
+from .math3d import cross, quat_exp_integrate
 
 #: m: contact points closer than this to touching add to the projection's metric.
 CONTACT_RANGE = 0.01
@@ -62,12 +62,8 @@ def project_joints(js, model, state):
         M, M_inv = metric
         mask *= keep[:, None]
         mu = -tree._substitute(tree._factor(Ja, Jb, mask, M), C)
-        imp = tree._body_impulses(Ja, Jb, mu)
-        if M_inv is None:
-            dx, dtheta = imp[..., :3] * model.inv_mass[:, None], mat_vec(tree.iinv, imp[..., 3:])
-        else:
-            d = np.matmul(M_inv, imp[..., None])[..., 0]
-            dx, dtheta = d[..., :3], d[..., 3:]
+        d = np.matmul(M_inv, tree._body_impulses(Ja, Jb, mu)[..., None])[..., 0]
+        dx, dtheta = d[..., :3], d[..., 3:]
         w = worlds[:, None, None]
         state.position[...] = np.where(w, state.position + dx, state.position)
         state.orientation[...] = np.where(w, quat_exp_integrate(state.orientation, dtheta, 1.0), state.orientation)
@@ -83,18 +79,26 @@ def _beyond_slop(C, slop):
 
 
 def _metric(tree, model, state, weight):
-    """The projection's metric on the tree's bodies (W, tree bodies, 6, 6) and,
-    when contacts add to it, its inverse on every body (W, N, 6, 6); else
-    (mass matrices, None)."""
-    rows = model.contacts.rows if model.contacts is not None and weight > 0 else None
-    if rows is None:
-        return tree.M, None
+    """The projection's metric on the tree's bodies (W, tree bodies, 6, 6) and
+    its inverse on every body (W, N, 6, 6), zero for bodies outside the tree.
+    Every world takes the same arithmetic whether or not another world has
+    contacts, so a world projects bit for bit the same alone or in a batch."""
     W, N = state.position.shape[:2]
+    P = np.zeros((W, N, 6, 6))
+    rows = model.contacts.rows if model.contacts is not None and weight > 0 else None
+    if rows is not None:
+        _add_contact_metric(P, rows, model, state, weight)
+    M = tree.M + P[:, tree.t.bodies]
+    M_inv = np.zeros((W, N, 6, 6))
+    M_inv[:, tree.t.bodies] = np.linalg.inv(M)
+    return M, M_inv
+
+
+def _add_contact_metric(P, rows, model, state, weight):
+    """Add k u uᵀ, u = (n, r × n), for every contact point within
+    CONTACT_RANGE of touching to its dynamic bodies' blocks of P (W, N, 6, 6)."""
     sep = rows.separation(state)
     near = rows.valid & (sep < CONTACT_RANGE)
-    if not near.any():
-        return tree.M, None
-    P = np.zeros((W, N, 6, 6))
     ramp = np.clip((CONTACT_RANGE - sep) / CONTACT_RANGE, 0.0, 1.0)
     for moves, body, lever in ((rows.dyn_b, rows.b, rows.rb), (rows.dyn_a, rows.a, rows.ra)):
         for j in range(near.shape[1]):
@@ -104,7 +108,3 @@ def _metric(tree, model, state, weight):
             u = np.concatenate((rows.n[on], cross(lever[on, j], rows.n[on])), axis=-1)
             k = weight * model.mass[body[on]] * ramp[on, j]
             np.add.at(P, (rows.w[on], body[on]), k[:, None, None] * u[:, :, None] * u[:, None, :])
-    M = tree.M + P[:, tree.t.bodies]
-    M_inv = np.zeros((W, N, 6, 6))
-    M_inv[:, tree.t.bodies] = np.linalg.inv(M)
-    return M, M_inv

@@ -27,11 +27,12 @@ JOINT_SOLVERS = ("tree", "gauss_seidel")
 #: a ragdoll dropped on the ground still moves at up to 2 cm/s 3-5 s later
 #: (the Gauss-Seidel contacts fight the rigid joints; the defaults: under
 #: 1 cm/s), so the defaults stay soft.
-#: With joint post-stabilisation (``joint_projection_passes``, below) the
+#: With the joint post-stabilisation at a 0.2 mm slop (``joint_projection_*``,
+#: below; the defaults project only beyond 4 cm) the
 #: humanoid under random maximum torques on the ground keeps every anchor
 #: within 0.20 mm (without: 9.1 mm; 8 worlds x 200 steps) for 5% more time per
 #: step, and a dropped ragdoll rests at 0.0007 m/s instead of 0.028 m/s.
-ACCURATE = {"substeps": 16, "joint_hertz": math.inf, "joint_limits_in_tree": True, "joint_projection_passes": 4}
+ACCURATE = {"substeps": 16, "joint_hertz": math.inf, "joint_limits_in_tree": True, "joint_projection_slop": 0.0002}
 
 
 @dataclass(frozen=True)
@@ -118,16 +119,23 @@ class Settings:
     joint_projection_passes: post-stabilisation of the tree joints at the end
         of each step (``engine.joint_projection``): at most this many exact
         Gauss-Newton passes move the positions, not the velocities, back onto
-        the joints, in the worlds where an error exceeds the slop; 0 (default)
-        turns it off. On in ``ACCURATE``. Off by default because of the soft
-        joints: measured at the defaults with 4 passes, the humanoid under
-        random maximum torques kept its anchors within the slop (5 mm: 5.0 mm
-        against 82 mm median over 16 worlds) and the 100 m/s ragdoll within
-        2 cm (0.5 m), but a soft joint carries its load by its stretch, and
-        projecting it changed the Balance task: the standing PD controller fell
-        in 12 of 40 pushed episodes instead of 3 (slop 5 mm); at 1 and 2 cm the
-        dropped ragdoll came to rest in other poses, one of which chatters
-        (0.11-0.42 m/s 4-6 s after landing, against 0.0000 without).
+        the joints, in the worlds where an error exceeds the slop; 0 turns it
+        off. Default 4 passes with a 4 cm slop, a safety net for extremes:
+        the ragdoll hitting the ground at 100 m/s keeps its joints within
+        4.1 cm (0.51 m without; penetration 3.6 cm against 0.9 cm), dropped
+        ragdolls open by 4.0 cm instead of 5.8-6.5 cm and rest as before, and
+        the Balance task, whose joints stay within the slop, steps exactly as
+        without it (the standing PD: the same 3 falls in 40 pushed episodes).
+        Under random maximum torques it holds the anchors at 4 cm (82 mm
+        median over 16 worlds) but the flailing limbs went deeper into the
+        ground (median 95 mm against 65), and the 1/30 s drop's feet sank 4.0
+        cm against 2.8. Costs 1-3% per step while no world needs it.
+        A smaller slop does not suit the default soft joints: a soft joint
+        carries its load by its stretch, and projecting the stretch away
+        changed the Balance task (slop 5 mm: the standing PD fell in 12 of 40
+        pushed episodes instead of 3) and, at 1-2 cm, left a dropped ragdoll in
+        poses that chatter at 0.1-0.4 m/s. ``ACCURATE`` (rigid joints) uses
+        the 0.2 mm slop.
     joint_projection_slop: m; only the part of an anchor error beyond it is
         projected (the lock rows' angular error beyond slop / 0.25 m rad).
     joint_projection_contact_weight: in the projection's metric, each contact
@@ -173,8 +181,8 @@ class Settings:
     gs_joint_hertz: float = 60.0
     gs_joint_damping_ratio: float = 2.0
     joint_relax: bool = True
-    joint_projection_passes: int = 0
-    joint_projection_slop: float = 0.0002
+    joint_projection_passes: int = 4
+    joint_projection_slop: float = 0.04
     joint_projection_contact_weight: float = 1000.0
     limit_hertz: float = math.inf
     contact_hertz: float = 60.0

@@ -9,7 +9,9 @@
                    warm start + biased solve; integrate positions; relax solve
                    (and further relax passes over the contacts of unjointed bodies)
       restitution  once, from the closing velocities before the solve
-      end of step  breaking springs and joints, events, non-finite check
+      end of step  joint post-stabilisation (positions back onto the joints
+                   beyond a slop), breaking springs and joints, events,
+                   non-finite check
 
 The state is advanced in place and returned. Nothing here loops over worlds,
 bodies, contacts or constraints of one colour.
