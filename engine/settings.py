@@ -23,15 +23,14 @@ JOINT_SOLVERS = ("tree", "gauss_seidel")
 #: held 0.7° until the joint dampers stopped absorbing motor torque; with the
 #: torques in full, 12 substeps let the limits pass by 3.5-3.9° (8 substeps,
 #: before: 1.5-2.4°: a light foot crosses its swing cone within a substep).
-#: At 12 substeps it cost 2.7 times the default on the ragdoll;
-#: a ragdoll dropped on the ground still moves at up to 2 cm/s 3-5 s later
-#: (the Gauss-Seidel contacts fight the rigid joints; the defaults: under
-#: 1 cm/s), so the defaults stay soft.
+#: At 12 substeps it cost 2.7 times the default on the ragdoll.
 #: With the joint post-stabilisation at a 0.2 mm slop (``joint_projection_*``,
-#: below; the defaults project only beyond 4 cm) the
-#: humanoid under random maximum torques on the ground keeps every anchor
-#: within 0.20 mm (without: 9.1 mm; 8 worlds x 200 steps) for 5% more time per
-#: step, and a dropped ragdoll rests at 0.0007 m/s instead of 0.028 m/s.
+#: below; the defaults project only beyond 4 cm) the humanoid under random
+#: maximum torques on the ground keeps every anchor within 0.20 mm (without:
+#: 9.1 mm; 8 worlds x 200 steps) for 5% more time per step. A ragdoll dropped
+#: from 1 m still moves at up to 2.3 cm/s 3-5 s later (6.5 cm/s without the
+#: post-stabilisation; the defaults: under 1 cm/s): the Gauss-Seidel contacts
+#: fight the rigid joints, so the defaults stay soft.
 ACCURATE = {"substeps": 16, "joint_hertz": math.inf, "joint_limits_in_tree": True, "joint_projection_slop": 0.0002}
 
 
@@ -122,13 +121,15 @@ class Settings:
         the joints, in the worlds where an error exceeds the slop; 0 turns it
         off. Default 4 passes with a 4 cm slop, a safety net for extremes:
         the ragdoll hitting the ground at 100 m/s keeps its joints within
-        4.1 cm (0.51 m without; penetration 3.6 cm against 0.9 cm), dropped
-        ragdolls open by 4.0 cm instead of 5.8-6.5 cm and rest as before, and
+        4.2 cm (0.51 m without; penetration after impact 3.1 cm against
+        0.9 cm), ragdolls dropped from 0.5-1.5 m open by 3.8-4.0 cm instead
+        of 5.8-6.5 cm (feet 2.7-2.9 cm deep, against 2.3-2.4) and rest as
+        before, and
         the Balance task, whose joints stay within the slop, steps exactly as
         without it (the standing PD: the same 3 falls in 40 pushed episodes).
-        Under random maximum torques it holds the anchors at 4 cm (82 mm
-        median over 16 worlds) but the flailing limbs went deeper into the
-        ground (median 95 mm against 65), and the 1/30 s drop's feet sank 4.0
+        Under random maximum torques it holds the anchors at 4 cm (without it
+        82 mm, median over 16 worlds x 300 steps) but the flailing limbs went deeper into the
+        ground (median 78 mm against 65), and the 1/30 s drop's feet sank 4.0
         cm against 2.8. Costs 1-3% per step while no world needs it.
         A smaller slop does not suit the default soft joints: a soft joint
         carries its load by its stretch, and projecting the stretch away
@@ -139,8 +140,9 @@ class Settings:
     joint_projection_slop: m; only the part of an anchor error beyond it is
         projected (the lock rows' angular error beyond slop / 0.25 m rad).
     joint_projection_contact_weight: in the projection's metric, each contact
-        point within 1 cm of touching makes moving its body along the contact
-        normal this many times as costly as the body's mass: without it the
+        point within 1 cm of touching adds this many times its body's mass
+        against moving that point along the contact normal (ramped to 0 at
+        1 cm; a face resting on its 4 points adds it 4 times): without it the
         projection closed a landing ragdoll's stretched ankle by turning the
         light foot 13 cm into the ground (14 mm with it).
     limit_hertz: softness of joint limits (Hz, damping ratio

@@ -159,7 +159,7 @@ def test_max_torque_quick_length():
     case = sc.ragdoll_max_torque()
     run_and_check(case, 2_000 * case.dt, known_miss="measured (benchmarks.stability --quick): anchor error "
                                                      "4.0 cm > 1 cm (the joint post-stabilisation's slop), "
-                                                     "penetration 11 cm > 5 cm within 2,000 steps")
+                                                     "penetration 16 cm > 5 cm within 2,000 steps")
 
 
 @pytest.mark.slow
@@ -167,7 +167,7 @@ def test_max_torque_100k_steps():
     """The long run: 100,000 steps of random maximum torques."""
     case = sc.ragdoll_max_torque()
     run_and_check(case, 100_000 * case.dt, known_miss="measured: anchor error 4.0 cm > 1 cm (the joint "
-                                                       "post-stabilisation's slop), penetration 11 cm > 5 cm "
+                                                       "post-stabilisation's slop), penetration 16 cm > 5 cm "
                                                        "within the first 2,000 steps")
 
 
@@ -175,7 +175,7 @@ def test_max_torque_100k_steps():
 def test_max_torque_far():
     case = sc.ragdoll_max_torque(FAR)
     run_and_check(case, 2_000 * case.dt, known_miss="measured 10 km out: anchor error 4.0 cm > 1 cm, "
-                                                     "penetration 15 cm > 5 cm in 2,000 steps")
+                                                     "penetration 14 cm > 5 cm in 2,000 steps")
 
 
 # ------------------------------------------------------------------ determinism
