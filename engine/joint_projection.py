@@ -6,8 +6,9 @@ The velocity-level solve keeps the anchors of a joint together only to first
 order: a link turning at ω drifts by about |ω|² h² |r| / 2 per substep, and the
 soft joints of an articulation in contact stretch under load. Under random
 maximum torques the humanoid's anchors opened by 13 cm at the defaults (9 mm
-at ``ACCURATE``) and at a 100 m/s impact by 0.5 m. Each projection pass is one Gauss-Newton step of C(q + Δq) = 0 over
-the tree, solved exactly with the tree solver's factorisation:
+at ``ACCURATE``) and at a 100 m/s impact by 0.5 m. Each projection pass is
+one Gauss-Newton step of C(q + Δq) = 0 over the tree, solved exactly with the
+tree solver's factorisation:
 
     (J W⁻¹ Jᵀ) μ = -C,    Δq = W⁻¹ Jᵀ μ
 
