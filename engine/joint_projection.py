@@ -58,6 +58,8 @@ def project_joints(js, model, state):
     if not keep.any():
         return
     slop = (s.joint_projection_slop, s.joint_projection_slop / ANGULAR_SLOP_LEVER)
+    if not _any_beyond_slop(js, tree, state, keep, slop):
+        return  # the usual step: no Jacobians built
     metric = None
     done = np.zeros(state.num_worlds, dtype=bool)
     before = None
@@ -85,7 +87,7 @@ def project_joints(js, model, state):
             metric = _metric(tree, model, state, s.joint_projection_contact_weight)
         M, M_inv = metric
         mask *= keep[:, None]
-        mu = -tree._substitute(tree._factor(Ja, Jb, mask, M), C)
+        mu = -tree._factor_solve(Ja, Jb, mask, C, M)
         d = np.matmul(M_inv, tree._body_impulses(Ja, Jb, mu)[..., None])[..., 0]
         # At most MAX_TURN rad for any body per pass, the whole world's step scaled alike.
         turn = np.sqrt((d[..., 3:] ** 2).sum(axis=-1)).max(axis=1)
@@ -98,6 +100,19 @@ def project_joints(js, model, state):
         state.orientation[...] = np.where(body[..., None], quat_exp_integrate(state.orientation, d[..., 3:], 1.0),
                                           state.orientation)
         js.positions_moved()
+
+
+def _any_beyond_slop(js, tree, state, keep, slop):
+    """Whether any active projected joint's anchor error exceeds the linear
+    slop or its lock rows' angular error the angular one. A hinge's error
+    a_p × a_c is normal to a_p, so its two lock rows hold all of it; a fixed
+    joint's rows are the whole vector; a ball joint has no lock rows."""
+    idx = tree.joints
+    a, b, fpw, fcw, ra, rb = js.frames(state, idx)
+    lin, ang = tree._position_errors(state, a, b, fpw, fcw, ra, rb)
+    locked = tree.ang_mask.any(axis=1)
+    beyond = (np.sqrt((lin ** 2).sum(axis=-1)) > slop[0]) | (locked & (np.sqrt((ang ** 2).sum(axis=-1)) > slop[1]))
+    return bool((beyond & keep & (js._active(state, idx) > 0)).any())
 
 
 def _beyond_slop(C, slop):

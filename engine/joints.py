@@ -1178,9 +1178,9 @@ class _TreeSolver:
         state.velocity += imp[..., :3] * model.inv_mass[:, None]
         state.angular_velocity += mat_vec(self.iinv, imp[..., 3:])
 
-    def _factor_solve(self, Ja, Jb, mask, r):
-        """(J M⁻¹ Jᵀ)⁻¹ r over the rows in mask (others 0)."""
-        return self._substitute(self._factor(Ja, Jb, mask), r)
+    def _factor_solve(self, Ja, Jb, mask, r, M=None):
+        """(J M⁻¹ Jᵀ)⁻¹ r over the rows in mask (others 0); M as in ``_factor``."""
+        return self._substitute(self._factor(Ja, Jb, mask, M), r)
 
     def _factor(self, Ja, Jb, mask, M=None):
         """Block LDLᵀ factors of [M Jᵀ; J 0] in leaves-first order (M: the
