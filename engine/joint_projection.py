@@ -36,6 +36,7 @@ from __future__ import annotations
 import numpy as np
 
 from .math3d import cross, quat_exp_integrate, quat_rotate
+from .state import State
 
 #: m: contact points closer than this to touching add to the projection's metric.
 CONTACT_RANGE = 0.01
@@ -58,12 +59,28 @@ def project_joints(js, model, state):
     if not keep.any():
         return
     slop = (s.joint_projection_slop, s.joint_projection_slop / ANGULAR_SLOP_LEVER)
-    if not _any_beyond_slop(js, tree, state, keep, slop):
+    need = _worlds_beyond_slop(js, tree, state, keep, slop)
+    if not need.any():
         return  # the usual step: no Jacobians built
-    metric = None
+    # Only the worlds beyond the slop are projected, on a copy of their
+    # positions (each world's arithmetic is its own, so the same bits as in a
+    # projection of every world); the rest cost nothing more.
+    worlds = np.flatnonzero(need)
+    metric = _metric(tree, model, state, s.joint_projection_contact_weight, worlds)
+    sub = State({k: state.arrays[k][worlds] for k in ("position", "orientation", "joint_broken")})
+    _project(js, tree, sub, keep, slop, metric, s.joint_projection_passes)
+    state.position[worlds] = sub.position
+    state.orientation[worlds] = sub.orientation
+    js.positions_moved()
+
+
+def _project(js, tree, state, keep, slop, metric, passes):
+    """At most ``passes`` Gauss-Newton passes on ``state`` (positions,
+    orientations and broken flags of the worlds being projected)."""
+    M, M_inv = metric
     done = np.zeros(state.num_worlds, dtype=bool)
     before = None
-    for k in range(s.joint_projection_passes + 1):
+    for k in range(passes + 1):
         a, b, Ja, Jb, mask, C = tree.jacobians(js, state, True, 1.0, velocity=False,
                                                max_push_out=np.inf, max_angular_push_out=np.inf)
         C *= keep[:, None]
@@ -78,14 +95,10 @@ def project_joints(js, model, state):
                 w = worse[:, None, None]
                 state.position[...] = np.where(w, before[1], state.position)
                 state.orientation[...] = np.where(w, before[2], state.orientation)
-                js.positions_moved()
                 done |= worse
         worlds = (err > 0.0) & ~done
-        if k == s.joint_projection_passes or not worlds.any():
+        if k == passes or not worlds.any():
             return
-        if metric is None:
-            metric = _metric(tree, model, state, s.joint_projection_contact_weight)
-        M, M_inv = metric
         mask *= keep[:, None]
         mu = -tree._factor_solve(Ja, Jb, mask, C, M)
         d = np.matmul(M_inv, tree._body_impulses(Ja, Jb, mu)[..., None])[..., 0]
@@ -99,20 +112,19 @@ def project_joints(js, model, state):
         state.position[...] = np.where(body[..., None], state.position + d[..., :3], state.position)
         state.orientation[...] = np.where(body[..., None], quat_exp_integrate(state.orientation, d[..., 3:], 1.0),
                                           state.orientation)
-        js.positions_moved()
 
 
-def _any_beyond_slop(js, tree, state, keep, slop):
-    """Whether any active projected joint's anchor error exceeds the linear
-    slop or its lock rows' angular error the angular one. A hinge's error
-    a_p × a_c is normal to a_p, so its two lock rows hold all of it; a fixed
-    joint's rows are the whole vector; a ball joint has no lock rows."""
+def _worlds_beyond_slop(js, tree, state, keep, slop):
+    """(W,) bool: worlds in which an active projected joint's anchor error
+    exceeds the linear slop or its lock rows' angular error the angular one. A
+    hinge's error a_p × a_c is normal to a_p, so its two lock rows hold all of
+    it; a fixed joint's rows are the whole vector; a ball joint has no lock rows."""
     idx = tree.joints
     a, b, fpw, fcw, ra, rb = js.frames(state, idx)
     lin, ang = tree._position_errors(state, a, b, fpw, fcw, ra, rb)
     locked = tree.ang_mask.any(axis=1)
     beyond = (np.sqrt((lin ** 2).sum(axis=-1)) > slop[0]) | (locked & (np.sqrt((ang ** 2).sum(axis=-1)) > slop[1]))
-    return bool((beyond & keep & (js._active(state, idx) > 0)).any())
+    return (beyond & keep & (js._active(state, idx) > 0)).any(axis=1)
 
 
 def _beyond_slop(C, slop):
@@ -123,18 +135,19 @@ def _beyond_slop(C, slop):
         C[..., rows] *= np.maximum(0.0, 1.0 - allowed / np.maximum(norm, 1e-300))
 
 
-def _metric(tree, model, state, weight):
-    """The projection's metric on the tree's bodies (W, tree bodies, 6, 6) and
-    its inverse on every body (W, N, 6, 6), zero for bodies outside the tree.
-    Every world takes the same arithmetic whether or not another world has
-    contacts, so a world projects bit for bit the same alone or in a batch."""
+def _metric(tree, model, state, weight, worlds):
+    """The projection's metric on the tree's bodies (len(worlds), tree bodies,
+    6, 6) and its inverse on every body (len(worlds), N, 6, 6), zero for bodies
+    outside the tree, for the given worlds of ``state``. Every world takes the
+    same arithmetic whether or not another world has contacts, so a world
+    projects bit for bit the same alone or in a batch."""
     W, N = state.position.shape[:2]
     P = np.zeros((W, N, 6, 6))
     rows = model.contacts.rows if model.contacts is not None and weight > 0 else None
     if rows is not None:
         _add_contact_metric(P, rows, model, state, weight)
-    M = tree.M + P[:, tree.t.bodies]
-    M_inv = np.zeros((W, N, 6, 6))
+    M = tree.M[worlds] + P[worlds][:, tree.t.bodies]
+    M_inv = np.zeros((worlds.size, N, 6, 6))
     M_inv[:, tree.t.bodies] = np.linalg.inv(M)
     return M, M_inv
 
