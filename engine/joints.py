@@ -163,9 +163,22 @@ class JointSet:
                 "passive": idx[(self.damping[idx] > 0) | (self.stiffness[idx] > 0)],
             })
         # Gauss-Seidel limit rows: their geometry is computed once per solve
-        # for all of them (positions do not move within a solve); each colour
-        # keeps its rows' positions in that list.
-        self.gs_limit = np.flatnonzero((has_limit | has_swing) & ~lim_in_tree)
+        # for all of them (positions do not move within a solve), listed
+        # colour by colour and within a colour twist-only, twist-and-swing,
+        # swing-only joints, so that a colour's twist rows and its swing rows
+        # are each one slice of that list (views, no gathers in the sweep).
+        # A colour's joints share no body, so their order within it is free.
+        gs_limit = []
+        for color in self.colors:
+            t, w = color["twist_limit"], color["swing_limit"]
+            both = np.intersect1d(t, w)
+            order = (np.setdiff1d(t, both), both, np.setdiff1d(w, both))
+            color["gs_slice"] = slice(sum(map(len, gs_limit)), sum(map(len, gs_limit)) + sum(map(len, order)))
+            color["twist_slice"] = slice(color["gs_slice"].start, color["gs_slice"].start + len(order[0]) + len(both))
+            color["swing_slice"] = slice(color["gs_slice"].start + len(order[0]), color["gs_slice"].stop)
+            color["twist_limit"], color["swing_limit"] = np.concatenate(order[:2]), np.concatenate(order[1:])
+            gs_limit.append(np.concatenate(order))
+        self.gs_limit = np.concatenate(gs_limit).astype(np.int64) if gs_limit else np.zeros(0, dtype=np.int64)
         if self.tree is not None:
             # Articulations that Gauss-Seidel joint rows act on (loop-closing
             # joints, limits outside the tree): their tree joints stay soft.
@@ -180,7 +193,6 @@ class JointSet:
             t.loop_touched[t.body_component[self.parent[~in_tree]]] = True
             t.loop_touched[t.body_component[self.child[~in_tree]]] = True
             t.loop_touched[-1] = False
-        where = {int(j): i for i, j in enumerate(self.gs_limit)}
         self.passive_joints = np.flatnonzero((self.damping > 0) | (self.stiffness > 0))
         where_passive = {int(j): i for i, j in enumerate(self.passive_joints)}
         for color in self.colors:
@@ -189,8 +201,6 @@ class JointSet:
             kp = self.kind[color["passive"]]
             n_axes = 1 if (kp == HINGE).all() else 3
             color["passive_use"] = [(((kp == BALL) | (k == 0)) & (kp != FIXED)).astype(float) for k in range(n_axes)]
-            color["twist_pos"] = np.array([where[int(j)] for j in color["twist_limit"]], dtype=np.int64)
-            color["swing_pos"] = np.array([where[int(j)] for j in color["swing_limit"]], dtype=np.int64)
         self.effect_names = {"joints"}
         if has_limit.any() or has_swing.any():
             self.effect_names.add("joint_limits")
@@ -531,15 +541,25 @@ class JointSet:
         sw = self._one_sided_terms(rows["C_swing"], rows["m_swing"], h, use_bias, soft)
         act = self._active(state, self.gs_limit)
         for color in self.colors:
-            pos, idx = color["twist_pos"], color["twist_limit"]
+            whole = color["gs_slice"]
+            if whole.start == whole.stop:
+                continue
+            # The inverse inertias of the colour's limited joints, gathered once
+            # for its twist and swing rows (both slices of this range).
+            idx = self.gs_limit[whole]
+            ia_all, ib_all = self._iinv[:, self.parent[idx]], self._iinv[:, self.child[idx]]
+            pos, idx = color["twist_slice"], color["twist_limit"]
             if idx.size:
                 a, b = self.parent[idx], self.child[idx]
+                inv = (ia_all[:, pos.start - whole.start:pos.stop - whole.start],
+                       ib_all[:, pos.start - whole.start:pos.stop - whole.start])
                 Jt, ac = rows["Jt"][:, pos], act[:, pos]
-                self._one_sided(state, a, b, Jt, [x[:, pos] for x in lo], ac, 0, idx)
-                self._one_sided(state, a, b, -Jt, [x[:, pos] for x in hi], ac, 1, idx)
-            pos, idx = color["swing_pos"], color["swing_limit"]
+                self._one_sided(state, a, b, inv, Jt, [x[:, pos] for x in lo], ac, 0, idx)
+                self._one_sided(state, a, b, inv, -Jt, [x[:, pos] for x in hi], ac, 1, idx)
+            pos, idx = color["swing_slice"], color["swing_limit"]
             if idx.size:
-                self._one_sided(state, self.parent[idx], self.child[idx], rows["Js"][:, pos],
+                inv = (ia_all[:, pos.start - whole.start:], ib_all[:, pos.start - whole.start:])
+                self._one_sided(state, self.parent[idx], self.child[idx], inv, rows["Js"][:, pos],
                                 [x[:, pos] for x in sw], act[:, pos], 2, idx)
 
     def _gs_limit_rows(self, state):
@@ -657,11 +677,12 @@ class JointSet:
         gain = -m * np.where(open_, 1.0, mass_scale)
         return gain, bias, np.where(open_, 0.0, impulse_scale)
 
-    def _one_sided(self, state, a, b, axis, terms, act, slot, idx):
+    def _one_sided(self, state, a, b, inv, axis, terms, act, slot, idx):
         """One-sided angular row about ``axis``: Δλ = gain (Ċ + bias) - isc λ with
-        the accumulated λ >= 0 (``terms`` = gain, bias, isc of ``_one_sided_terms``)."""
+        the accumulated λ >= 0 (``terms`` = gain, bias, isc of ``_one_sided_terms``;
+        ``inv``: the world inverse inertias of bodies a and b)."""
         gain, bias, isc = terms
-        ia, ib = self._iinv[:, a], self._iinv[:, b]
+        ia, ib = inv
         cdot = dot(state.angular_velocity[:, b] - state.angular_velocity[:, a], axis)
         lam = state.joint_limit_impulse[:, idx, slot]
         d = gain * (cdot + bias) - isc * lam
