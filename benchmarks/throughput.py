@@ -2,11 +2,14 @@
 
     python -m benchmarks.throughput [--worlds 1 16 256 1024 4096] [--scenes ...]
         [--steps N] [--repeats R] [--quick] [--json PATH] [--compare-mujoco]
+        [--processes P ...]
 
 For each scene and world count W: world-steps per second, simulated seconds
 per wall-clock second (world-steps/s x dt) and bytes per world (the state plus
 the tracemalloc peak of one step, both divided by W). Without ``--steps`` the
 step count is chosen so one timed repeat lasts about ``--target-seconds``.
+With ``--processes P`` each W >= P is also stepped by ``engine.ParallelStepper``
+in P worker processes (mode ``batched-Pproc``; memory not measured there).
 """
 
 from __future__ import annotations
@@ -18,7 +21,7 @@ import warnings
 
 import numpy as np
 
-from engine import Box, Capsule, Control, SceneBuilder, Sphere, step
+from engine import Box, Capsule, Control, ParallelStepper, SceneBuilder, Sphere, step
 from engine.humanoid import add_humanoid
 
 from .common import machine_note, measure, print_table, write_json
@@ -121,6 +124,25 @@ def bench_scene(name, model, worlds, args):
                state_bytes + temp_bytes, state_bytes)
 
 
+def bench_parallel(name, model, worlds, processes, args):
+    """The same scene and controls stepped by ``engine.ParallelStepper``."""
+    state0 = model.initial_state(worlds)
+    controls = random_controls(model, worlds)
+    state = state0.copy()
+    with ParallelStepper(model, state, processes) as stepper:
+        def make_run(n):
+            state.assign(slice(None), state0)
+
+            def run():
+                for i in range(n):
+                    stepper.step(controls[i % len(controls)])
+            return run
+
+        steps, seconds = measure(make_run, args.repeats, args.steps, args.target_seconds, min_steps=2)
+    return row("ragdoll", f"batched-{processes}proc", name, worlds, model.settings.dt, steps, seconds,
+               args.repeats)
+
+
 def ragdoll_rows(args, notes):
     rows = []
     for name in args.scenes:
@@ -132,10 +154,14 @@ def ragdoll_rows(args, notes):
         for worlds in args.worlds:
             try:
                 rows.append(bench_scene(name, model, worlds, args))
+                print(f"measured {name} W={worlds}", flush=True)
+                for processes in args.processes:
+                    if 1 < processes <= worlds:
+                        rows.append(bench_parallel(name, model, worlds, processes, args))
+                        print(f"measured {name} W={worlds} in {processes} processes", flush=True)
             except Exception as exc:
                 notes.append(f"{name} W={worlds}: skipped, stepping failed: {type(exc).__name__}: {exc}")
                 break
-            print(f"measured {name} W={worlds}", flush=True)
     return rows
 
 
@@ -277,8 +303,8 @@ def ratio_lines(rows):
     lines = []
     if reference:
         for r in rows:
-            if r["engine"] == "ragdoll" and r["mode"] == "batched" and r["scene"] in HUMANOID_SCENES:
-                lines.append(f"ragdoll {r['scene']} W={r['worlds']} / mujoco humanoid rollout-2thread "
+            if r["engine"] == "ragdoll" and r["mode"].startswith("batched") and r["scene"] in HUMANOID_SCENES:
+                lines.append(f"ragdoll {r['mode']} {r['scene']} W={r['worlds']} / mujoco humanoid rollout-2thread "
                              f"W={reference['worlds']}: {r['sim_s_per_s'] / reference['sim_s_per_s']:.3g}x "
                              f"simulated s per s")
     for mode in ("env", "vector-env"):
@@ -310,6 +336,9 @@ def parse_args(argv):
     p.add_argument("--json", metavar="PATH", help="write the rows as a JSON list")
     p.add_argument("--compare-mujoco", action="store_true", help="measure MuJoCo's humanoid and Humanoid-v5 too")
     p.add_argument("--mujoco-worlds", type=int, help=f"worlds of the MuJoCo rollouts (default {MUJOCO_WORLDS})")
+    p.add_argument("--processes", type=int, nargs="+", default=[],
+                   help="also step each W >= P in P worker processes (engine.ParallelStepper): "
+                        "rows of mode batched-Pproc")
     args = p.parse_args(argv)
     if args.quick:
         args.worlds = args.worlds or list(QUICK_WORLDS)
@@ -321,6 +350,8 @@ def parse_args(argv):
     args.mujoco_worlds = args.mujoco_worlds or MUJOCO_WORLDS
     if min(args.worlds) < 1 or args.repeats < 1 or (args.steps is not None and args.steps < 1):
         p.error("--worlds, --steps and --repeats must be >= 1")
+    if any(n < 1 for n in args.processes):
+        p.error("--processes must be >= 1")
     return args
 
 

@@ -5,6 +5,7 @@ from .control import Control, apply_impulse
 from .errors import SceneError, SimulationError
 from .materials import Material, MaterialTable
 from .model import Model
+from .parallel import ParallelStepper
 from .settings import ACCURATE, Settings
 from .shapes import Box, Capsule, Plane, Sphere
 from .state import Event, State

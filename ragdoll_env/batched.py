@@ -68,13 +68,17 @@ class BatchedSim:
         to count in ``info["pushes_survived"]``.
     max_episode_steps: truncate episodes after this many env steps (None: never;
         the single env leaves this to Gymnasium's TimeLimit).
+    processes: step the worlds in this many worker processes
+        (``engine.ParallelStepper``; the same results bit for bit; default 1,
+        none). On this 2-core machine 2 processes stepped the ragdoll 1.2x as
+        fast at W = 64 and 1.9x at 256 (benchmarks.throughput). Call ``close``.
     **settings: engine accuracy settings (``dt``, ``substeps``, ... see
         :class:`engine.Settings`), defaults from the task.
     """
 
     def __init__(self, task: Task, num_worlds: int = 1, *, frame_skip=None, reset_noise_scale=None,
                  push_strength=None, push_interval=None, push_bodies=None, push_recovery_time=None,
-                 max_episode_steps=None, **settings):
+                 max_episode_steps=None, processes=1, **settings):
         if not isinstance(task, Task):
             raise TypeError(f"task must be a Task instance, got {task!r}")
         for name in settings:
@@ -120,6 +124,9 @@ class BatchedSim:
             raise ValueError("push_bodies must name at least one body when push_strength > 0")
 
         self.state = self.model.initial_state(W)
+        self.processes = opt.integer("processes", processes, minimum=1)
+        self._stepper = engine.ParallelStepper(self.model, self.state, self.processes) if min(
+            self.processes, W) > 1 else None
         self._template = self.model.initial_state(1)
         self.num_actuators = self.model.num_actuators
         self.max_torque = np.array([a.max_torque for a in self.model.actuators], dtype=np.float64)
@@ -224,6 +231,12 @@ class BatchedSim:
         self.last_push_time[applied] = t[applied]
         return applied, impulse, body
 
+    def close(self) -> None:
+        """Stop the worker processes, if any (the state keeps its values)."""
+        if self._stepper is not None:
+            self._stepper.close()
+            self._stepper = None
+
     # ------------------------------------------------------------ step
     def step(self, action, active=None):
         """Advance every world one env step with ``action`` (W, A) in [-1, 1]
@@ -244,7 +257,10 @@ class BatchedSim:
         task, model = self.task, self.model
         with np.errstate(all="ignore"):  # a world blowing up is reported in info["nonfinite"]
             for _ in range(self.frame_skip):
-                engine.step(model, self.state, control)
+                if self._stepper is None:
+                    engine.step(model, self.state, control)
+                else:
+                    self._stepper.step(control)
             obs = task.observe(model, self.state).astype(np.float32)
             healthy, terms, extra = task.evaluate(model, self.state, a)
             reward = np.zeros(W)

@@ -28,7 +28,7 @@ SETTINGS_KEYS = tuple(f.name for f in fields(Settings) if f.name != "check_finit
 
 #: Keyword arguments of the batched core, for every task.
 COMMON_KEYS = ("frame_skip", "reset_noise_scale", "push_strength", "push_interval", "push_bodies",
-               "push_recovery_time")
+               "push_recovery_time", "processes")
 
 #: Rendering keyword arguments (single and vector envs).
 RENDER_KEYS = ("render_mode", "width", "height")

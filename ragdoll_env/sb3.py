@@ -139,6 +139,7 @@ def _sb3_class():
             return obs.copy(), reward.astype(np.float32), dones, infos
 
         def close(self):
+            self.core.close()
             self._renderer = None
 
         def get_attr(self, attr_name, indices=None):

@@ -94,6 +94,7 @@ class RagdollEnv(CoreAccess, gym.Env):
         return frame
 
     def close(self):
+        self.core.close()
         if self._viewer is not None:
             self._viewer.close()
             self._viewer = None

@@ -155,6 +155,7 @@ class RagdollVectorEnv(CoreAccess, VectorEnv):
         return tuple(self.core.render(self._renderer, w) for w in range(self.num_envs))
 
     def close_extras(self, **kwargs):
+        self.core.close()
         if self._viewer is not None:
             self._viewer.close()
             self._viewer = None

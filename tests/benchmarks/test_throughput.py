@@ -13,7 +13,8 @@ def check_rows(rows):
     for r in rows:
         assert KEYS <= r.keys()
         assert r["engine"] in ("ragdoll", "mujoco")
-        assert r["mode"] in ("batched", "loop", "rollout-1thread", "rollout-2thread", "env", "vector-env")
+        assert r["mode"] in ("batched", "batched-2proc", "loop", "rollout-1thread", "rollout-2thread", "env",
+                             "vector-env")
         assert isinstance(r["worlds"], int) and r["worlds"] >= 1
         assert math.isfinite(r["world_steps_per_s"]) and r["world_steps_per_s"] > 0
         for key in ("dt_s", "sim_s_per_s", "bytes_per_world"):
@@ -43,3 +44,12 @@ def test_quick_mujoco_comparison(tmp_path):
     modes = {(r["engine"], r["mode"]) for r in rows}
     assert {("mujoco", "loop"), ("mujoco", "rollout-1thread"), ("mujoco", "rollout-2thread"),
             ("mujoco", "env"), ("mujoco", "vector-env"), ("ragdoll", "batched")} <= modes
+
+
+def test_quick_run_in_two_processes(tmp_path):
+    path = tmp_path / "throughput.json"
+    main(["--quick", "--scenes", "ragdoll_ground", "--worlds", "1", "4", "--processes", "2", "--json", str(path)])
+    rows = json.loads(path.read_text())
+    check_rows(rows)
+    # W = 1 has no second process to use: only one-process rows there.
+    assert sorted((r["mode"], r["worlds"]) for r in rows) == [("batched", 1), ("batched", 4), ("batched-2proc", 4)]

@@ -199,3 +199,26 @@ def test_sb3_adapter_renders_rgb_frames():
     images = venv.get_images()
     assert len(images) == 2 and images[0].shape == (30, 40, 3)
     assert venv.render().dtype == np.uint8
+
+
+def test_vector_env_in_worker_processes_equals_one_process():
+    # Balance with pushes every 0.05-0.1 s and episodes of 20 steps (autoreset),
+    # 3 worlds over 2 processes: the same observations, rewards and infos bit for bit.
+    kwargs = dict(max_episode_steps=20, push_strength=(5.0, 20.0), push_interval=(0.05, 0.1))
+    one = make_vec("Ragdoll/Balance-v0", **kwargs)
+    two = make_vec("Ragdoll/Balance-v0", processes=2, **kwargs)
+    assert two.unwrapped.core.processes == 2 and two.unwrapped.core._stepper.processes == 2
+    outs = [envs.reset(seed=5) for envs in (one, two)]
+    np.testing.assert_array_equal(outs[0][0], outs[1][0])
+    actions = random_actions(2, 30, one.action_space.shape)
+    pushes = 0
+    for a in actions:
+        (o1, r1, t1, u1, i1), (o2, r2, t2, u2, i2) = one.step(a), two.step(a)
+        for x, y in ((o1, o2), (r1, r2), (t1, t2), (u1, u2), (i1["push_impulse"], i2["push_impulse"])):
+            np.testing.assert_array_equal(x, y)
+        pushes += int(i1["push_applied"].sum())
+    assert pushes > 0 and one.unwrapped.state.equal(two.unwrapped.state)
+    two.close()
+    assert two.unwrapped.core._stepper is None
+    with pytest.raises(ValueError, match="processes must be >= 1"):
+        make_vec("Ragdoll/Balance-v0", processes=0)
