@@ -109,7 +109,6 @@ FAST = {
 
 #: measured misses of the fast part (python -m pytest tests/stability, this checkout)
 FAST_XFAIL = {
-    "sphere_grid": "measured: anchor error 3.4 cm > 1 cm within 1 s",
     "large_dt_ragdoll": "measured: anchor error 4.0 cm > 1 cm (held at the joint post-stabilisation's 4 cm slop; "
                         "5.8 cm without), penetration 4.0 cm > 3 cm",
 }
@@ -123,12 +122,10 @@ SLOW_XFAIL = {
                 "N·m/rad, is below the about 5400 a column of 20 such boxes needs; 8 substeps at 120 Hz "
                 "hold it)",
     "ragdoll_pile_10": "measured (quick run): anchor error 1.9 cm > 1 cm, penetration 5.2 cm > 5 cm",
-    "sphere_grid": "measured (quick run): anchor error 3.8 cm > 1 cm",
     "large_dt_ragdoll": "measured (quick run): anchor error 4.0 cm > 1 cm (the joint post-stabilisation's slop), "
                         "penetration 4.0 cm > 3 cm",
 }
-for _n in ("stack_20", "sphere_grid"):
-    SLOW_XFAIL[_n + "_far"] = SLOW_XFAIL[_n]
+SLOW_XFAIL["stack_20_far"] = SLOW_XFAIL["stack_20"]
 SLOW_XFAIL["ragdoll_pile_10_far"] = SLOW_XFAIL["ragdoll_pile_10"]
 
 
