@@ -26,9 +26,11 @@ world's error larger is taken back and ends that world's projection.
 Only errors beyond ``joint_projection_slop`` are projected, back to the slop:
 a soft joint carries its static load by its stretch, and taking that stretch
 away every step made a resting ragdoll's foot chatter at 0.1-0.25 m/s.
-Articulations with loop-closing joints are left to the velocity solve: the
-tree's projection pushed the error into the loop rows (a 10x10 grid of ball
-joints opened 82 mm instead of 38 mm).
+Loop-closing joints solved with the tree (``joint_loops`` "exact") are
+projected with it, by the same Schur complement; articulations whose loop
+rows are Gauss-Seidel are left to the velocity solve: the tree's projection
+alone pushed the error into the loop rows (a 10x10 grid of ball joints
+opened 82 mm instead of 38 mm).
 """
 
 from __future__ import annotations
@@ -78,15 +80,23 @@ def _project(js, tree, state, keep, slop, metric, passes):
     """At most ``passes`` Gauss-Newton passes on ``state`` (positions,
     orientations and broken flags of the worlds being projected)."""
     M, M_inv = metric
+    loops = js.loop_rows
     done = np.zeros(state.num_worlds, dtype=bool)
     before = None
     for k in range(passes + 1):
-        a, b, Ja, Jb, mask, C = tree.jacobians(js, state, True, 1.0, velocity=False,
-                                               max_push_out=np.inf, max_angular_push_out=np.inf)
+        rows = tree.jacobians(js, state, True, 1.0, velocity=False, max_push_out=np.inf, max_angular_push_out=np.inf)
+        a, b, Ja, Jb, mask, C = rows
         C *= keep[:, None]
         _beyond_slop(C, slop)
         # Merit: the 2-norm of the errors beyond the slop, the angular rows at the slop's lever (m).
-        err = np.sqrt((C[..., :3] ** 2).sum(axis=(1, 2)) + ANGULAR_SLOP_LEVER ** 2 * (C[..., 3:] ** 2).sum(axis=(1, 2)))
+        err = (C[..., :3] ** 2).sum(axis=(1, 2)) + ANGULAR_SLOP_LEVER ** 2 * (C[..., 3:] ** 2).sum(axis=(1, 2))
+        if loops is not None:
+            lrows = tree.jacobians(js, state, True, 1.0, velocity=False, max_push_out=np.inf,
+                                   max_angular_push_out=np.inf, rows=loops)
+            CL = lrows[5]
+            _beyond_slop(CL, slop)
+            err = err + (CL[..., :3] ** 2).sum(axis=(1, 2)) + ANGULAR_SLOP_LEVER ** 2 * (CL[..., 3:] ** 2).sum(axis=(1, 2))
+        err = np.sqrt(err)
         if before is not None:
             # A pass that left a world's error larger is taken back, and that
             # world stops: the linearisation does not hold that far out.
@@ -100,8 +110,14 @@ def _project(js, tree, state, keep, slop, metric, passes):
         if k == passes or not worlds.any():
             return
         mask *= keep[:, None]
-        mu = -tree._factor_solve(Ja, Jb, mask, C, M)
-        d = np.matmul(M_inv, tree._body_impulses(Ja, Jb, mu)[..., None])[..., 0]
+        if loops is None:
+            mu = -tree._factor_solve(Ja, Jb, mask, C, M)
+            d = np.matmul(M_inv, tree._body_impulses(Ja, Jb, mu)[..., None])[..., 0]
+        else:
+            # Loop-closing joints (solved exactly with the tree): the coupled solve in the same metric.
+            mu, mu_l = tree.solve_coupled(rows, lrows, loops, lambda v: np.matmul(M_inv, v), M)
+            imp = tree.body_columns(Ja, Jb, -mu[..., None]) + tree.body_columns(lrows[2], lrows[3], -mu_l[..., None], loops)
+            d = np.matmul(M_inv, imp)[..., 0]
         # At most MAX_TURN rad for any body per pass, the whole world's step scaled alike.
         turn = np.sqrt((d[..., 3:] ** 2).sum(axis=-1)).max(axis=1)
         d *= (MAX_TURN / np.maximum(turn, MAX_TURN))[:, None, None]
@@ -119,12 +135,17 @@ def _worlds_beyond_slop(js, tree, state, keep, slop):
     exceeds the linear slop or its lock rows' angular error the angular one. A
     hinge's error a_p × a_c is normal to a_p, so its two lock rows hold all of
     it; a fixed joint's rows are the whole vector; a ball joint has no lock rows."""
-    idx = tree.joints
-    a, b, fpw, fcw, ra, rb = js.frames(state, idx)
-    lin, ang = tree._position_errors(state, a, b, fpw, fcw, ra, rb)
-    locked = tree.ang_mask.any(axis=1)
-    beyond = (np.sqrt((lin ** 2).sum(axis=-1)) > slop[0]) | (locked & (np.sqrt((ang ** 2).sum(axis=-1)) > slop[1]))
-    return (beyond & keep & (js._active(state, idx) > 0)).any(axis=1)
+    need = np.zeros(state.num_worlds, dtype=bool)
+    for rows, use in ((tree, keep), (js.loop_rows, True)):
+        if rows is None:
+            continue
+        idx = rows.joints
+        a, b, fpw, fcw, ra, rb = js.frames(state, idx)
+        lin, ang = rows._position_errors(state, a, b, fpw, fcw, ra, rb)
+        locked = rows.ang_mask.any(axis=1)
+        beyond = (np.sqrt((lin ** 2).sum(axis=-1)) > slop[0]) | (locked & (np.sqrt((ang ** 2).sum(axis=-1)) > slop[1]))
+        need |= (beyond & use & (js._active(state, idx) > 0)).any(axis=1)
+    return need
 
 
 def _beyond_slop(C, slop):

@@ -155,7 +155,7 @@ class JointSet:
         # unless their rows stay Gauss-Seidel; not with limits in the tree.
         self.loop_rows = None
         in_loop_solve = np.zeros(J, dtype=bool)
-        if self.tree is not None and settings.joint_loops == "exact" and not lim_in_tree.any():
+        if self.tree is not None and settings.joint_loops == "exact" and not self.tree.limits:
             moving = model.dynamic[self.parent] | model.dynamic[self.child]
             loops = np.flatnonzero(~in_tree & moving)
             if loops.size:
@@ -201,10 +201,12 @@ class JointSet:
             t.gs_touched[t.body_component[self.parent[gs_rows]]] = True
             t.gs_touched[t.body_component[self.child[gs_rows]]] = True
             t.gs_touched[-1] = False
-            # Articulations with loop-closing joints: not position-projected (engine.joint_projection).
+            # Articulations with Gauss-Seidel loop-closing joints: not
+            # position-projected (engine.joint_projection).
+            gs_loop = ~in_tree & ~in_loop_solve
             t.loop_touched = np.zeros(t.num_components + 1, dtype=bool)
-            t.loop_touched[t.body_component[self.parent[~in_tree]]] = True
-            t.loop_touched[t.body_component[self.child[~in_tree]]] = True
+            t.loop_touched[t.body_component[self.parent[gs_loop]]] = True
+            t.loop_touched[t.body_component[self.child[gs_loop]]] = True
             t.loop_touched[-1] = False
         self.passive_joints = np.flatnonzero((self.damping > 0) | (self.stiffness > 0))
         where_passive = {int(j): i for i, j in enumerate(self.passive_joints)}
@@ -1222,22 +1224,14 @@ class _TreeSolver(_Rows):
 
     def solve_with_loops(self, js, model, state, soft_tree, soft_loop, use_bias):
         """The tree rows and the loop-closing rows (``js.loop_rows``) solved
-        together, exactly: with K = J M⁻¹ Jᵀ split into tree rows T and loop
-        rows L, the tree factorisation gives X = K_TT⁻¹ K_TL column by column
-        and y = K_TT⁻¹ r_T; the loop rows solve the dense Schur complement
-
-            (K_LL - K_LT X) x_L = r_L - K_LT y,     x_T = y - X x_L
-
-        (Baraff 1996, section 7: loops by the tree plus a small dense system).
-        One column per used loop row: a 10x10 grid of ball joints pinned at two
-        corners has 82 loops, 246 columns, and stepped at 74 ms against 31 ms
-        with Gauss-Seidel loop rows."""
+        together, exactly (``solve_coupled``), then softened row by row as the
+        tree's alone: Δλ = -mass_scale x - impulse_scale λ."""
         (bias_t, ms_t, isc_t), (bias_l, ms_l, isc_l) = soft_tree, soft_loop
         rows = js.loop_rows
-        a, b, Ja, Jb, mask, r = self.jacobians(js, state, use_bias, bias_t)
-        la, lb, La, Lb, lmask, lr = self.jacobians(js, state, use_bias, bias_l, rows=rows)
-        factors = self._factor(Ja, Jb, mask)
-        W, nl = lr.shape[:2]
+        tree_rows = self.jacobians(js, state, use_bias, bias_t)
+        loop_rows = self.jacobians(js, state, use_bias, bias_l, rows=rows)
+        a, b, Ja, Jb, mask, _ = tree_rows
+        la, lb, La, Lb, lmask, _ = loop_rows
         inv_m = model.inv_mass
 
         def inv_mass_times(v):
@@ -1247,41 +1241,7 @@ class _TreeSolver(_Rows):
             out[..., 3:, :] = np.matmul(self.iinv, v[..., 3:, :])
             return out
 
-        def body_columns(JA, JB, x, split_a, split_b):
-            """Σ Jᵀ x per body: (W, N, 6, k) from row blocks x (W, n, 6, k)."""
-            out = np.zeros((W, self.num_bodies, 6, x.shape[-1]))
-            _scatter_add(out, split_a, _mtm(JA, x))
-            _scatter_add(out, split_b, _mtm(JB, x))
-            return out
-
-        def rows_of(JA, JB, ia, ib, v):
-            """J v for row blocks with sides ia, ib: (W, n, 6, k) from (W, N, 6, k)."""
-            return _mm(JA, v[:, ia]) + _mm(JB, v[:, ib])
-
-        # G = M⁻¹ J_Lᵀ, one column per used loop row (the kinds' rows; broken
-        # joints' rows are masked per world below).
-        used = rows.used_rows
-        m = used.size
-        eye = np.zeros((W, nl * 6, m))
-        eye[:, used, np.arange(m)] = 1.0
-        G = inv_mass_times(body_columns(La, Lb, eye.reshape(W, nl, 6, m), rows.split_a, rows.split_b))
-        X = self._substitute_columns(factors, rows_of(Ja, Jb, a, b, G))  # K_TT⁻¹ K_TL (W, nj, 6, m)
-        V = inv_mass_times(body_columns(Ja, Jb, X, self.split_a, self.split_b))
-        S = (rows_of(La, Lb, la, lb, G) - rows_of(La, Lb, la, lb, V)).reshape(W, nl * 6, m)[:, used]
-        # Rows of a straight chain between two pins are redundant (a 10x10 grid
-        # pinned at two corners of one edge): a relative 1e-6 on the diagonal
-        # keeps S definite; an impulse in that null space moves nothing.
-        diag = np.arange(m)
-        lm = lmask.reshape(W, nl * 6)[:, used]
-        S[:, diag, diag] += (1.0 - lm) + LOOP_REGULARISATION * S[:, diag, diag].max(axis=1, keepdims=True)
-        y = self._substitute_columns(factors, r[..., None])  # K_TT⁻¹ r_T
-        Ky = rows_of(La, Lb, la, lb, inv_mass_times(body_columns(Ja, Jb, y, self.split_a, self.split_b)))
-        rhs = (lr[..., None] - Ky).reshape(W, nl * 6, 1)[:, used] * lm[..., None]
-        x_used = np.linalg.solve(S, rhs)  # (W, m, 1)
-        x_t = (y - np.matmul(X, x_used[:, None]))[..., 0]
-        x_l = np.zeros((W, nl * 6))
-        x_l[:, used] = x_used[..., 0]
-        x_l = x_l.reshape(W, nl, 6)
+        x_t, x_l = self.solve_coupled(tree_rows, loop_rows, rows, inv_mass_times)
         d = (-ms_t * x_t - isc_t * self._lam(state)) * mask
         self._apply(js, model, state, a, b, Ja, Jb, d)
         idx = rows.joints
@@ -1290,9 +1250,66 @@ class _TreeSolver(_Rows):
         new = lam + d * rows.eq_mask
         state.joint_linear_impulse[:, idx] = new[..., :3]
         state.joint_angular_impulse[:, idx] = new[..., 3:]
-        imp = body_columns(La, Lb, d[..., None], rows.split_a, rows.split_b)[..., 0]
+        imp = self.body_columns(La, Lb, d[..., None], rows)[..., 0]
         state.velocity += imp[..., :3] * inv_m[:, None]
         state.angular_velocity += mat_vec(self.iinv, imp[..., 3:])
+
+    def body_columns(self, JA, JB, x, rows=None):
+        """Σ Jᵀ x per body, (W, N, 6, k), from row blocks x (W, n, 6, k) of the
+        tree's joints (or of ``rows``)."""
+        rows = self if rows is None else rows
+        out = np.zeros((x.shape[0], self.num_bodies, 6, x.shape[-1]))
+        _scatter_add(out, rows.split_a, _mtm(JA, x))
+        _scatter_add(out, rows.split_b, _mtm(JB, x))
+        return out
+
+    def solve_coupled(self, tree_rows, loop_rows, rows, inv_metric_times, M=None):
+        """x = K⁻¹ r over the tree rows T and the loop rows L together, K = J W⁻¹ Jᵀ
+        (W: the bodies' metric, the mass matrices or ``M`` with
+        ``inv_metric_times(v)`` = W⁻¹ v on (W, N, 6, k) blocks). The tree
+        factorisation gives X = K_TT⁻¹ K_TL column by column and y = K_TT⁻¹ r_T;
+        the loop rows solve the dense Schur complement
+
+            (K_LL - K_LT X) x_L = r_L - K_LT y,     x_T = y - X x_L
+
+        (Baraff 1996, section 7: loops by the tree plus a small dense system).
+        ``tree_rows``, ``loop_rows``: ``jacobians`` of each. One column per used
+        loop row: a 10x10 grid of ball joints pinned at two corners has 82
+        loops, 246 columns, and stepped at 74 ms against 31 ms with
+        Gauss-Seidel loop rows. Returns x_T (W, nj, 6), x_L (W, nl, 6)."""
+        a, b, Ja, Jb, mask, r = tree_rows
+        la, lb, La, Lb, lmask, lr = loop_rows
+        factors = self._factor(Ja, Jb, mask, M)
+        W, nl = lr.shape[:2]
+
+        def rows_of(JA, JB, ia, ib, v):
+            """J v for row blocks with sides ia, ib: (W, n, 6, k) from (W, N, 6, k)."""
+            return _mm(JA, v[:, ia]) + _mm(JB, v[:, ib])
+
+        # G = W⁻¹ J_Lᵀ, one column per used loop row (the kinds' rows; broken
+        # joints' rows are masked per world below).
+        used = rows.used_rows
+        m = used.size
+        eye = np.zeros((W, nl * 6, m))
+        eye[:, used, np.arange(m)] = 1.0
+        G = inv_metric_times(self.body_columns(La, Lb, eye.reshape(W, nl, 6, m), rows))
+        X = self._substitute_columns(factors, rows_of(Ja, Jb, a, b, G))  # K_TT⁻¹ K_TL (W, nj, 6, m)
+        V = inv_metric_times(self.body_columns(Ja, Jb, X))
+        S = (rows_of(La, Lb, la, lb, G) - rows_of(La, Lb, la, lb, V)).reshape(W, nl * 6, m)[:, used]
+        # Rows of a straight chain between two pins are redundant (a 10x10 grid
+        # pinned at two corners of one edge): a relative 1e-6 on the diagonal
+        # keeps S definite; an impulse in that null space moves nothing.
+        diag = np.arange(m)
+        lm = lmask.reshape(W, nl * 6)[:, used]
+        S[:, diag, diag] += (1.0 - lm) + LOOP_REGULARISATION * S[:, diag, diag].max(axis=1, keepdims=True)
+        y = self._substitute_columns(factors, r[..., None])  # K_TT⁻¹ r_T
+        Ky = rows_of(La, Lb, la, lb, inv_metric_times(self.body_columns(Ja, Jb, y)))
+        rhs = (lr[..., None] - Ky).reshape(W, nl * 6, 1)[:, used] * lm[..., None]
+        x_used = np.linalg.solve(S, rhs)  # (W, m, 1)
+        x_t = (y - np.matmul(X, x_used[:, None]))[..., 0]
+        x_l = np.zeros((W, nl * 6))
+        x_l[:, used] = x_used[..., 0]
+        return x_t, x_l.reshape(W, nl, 6)
 
     def _lam(self, state):
         idx = self.joints

@@ -89,26 +89,29 @@ def test_worlds_within_the_slop_step_bit_identically():
     assert a.equal(b)
 
 
-def test_articulations_with_loop_closing_joints_are_not_projected():
+def ring_and_chain(**settings):
     """A ring of four links (three tree joints and one loop-closing joint)
-    pinned to the world: its projection would push the error into the loop
-    row, so its bodies step exactly as without projection, while a chain
-    beside it in the same world is projected."""
-    def ring_and_chain(**settings):
-        b = e.SceneBuilder(**settings)
-        corners = [(0, 0, 0), (0.4, 0, 0), (0.4, 0, -0.4), (0, 0, -0.4)]
-        for i, c in enumerate(corners):
-            b.add_body(f"s{i}", e.Sphere(0.05), mass=1.0 if i else 10.0, position=c)
-        b.add_ball("pin", None, "s0", anchor=corners[0])
-        for i in range(4):
-            p, c = corners[i], corners[(i + 1) % 4]
-            b.add_ball(f"link{i}", f"s{i}", f"s{(i + 1) % 4}", anchor=tuple((np.add(p, c)) / 2))
-        for i in range(3):  # a chain released from horizontal, 2 m away
-            b.add_body(f"c{i}", e.Sphere(0.05), mass=1.0, position=(2.0 + 0.3 * (i + 1), 0, 0))
-            b.add_ball(f"chain{i}", f"c{i - 1}" if i else None, f"c{i}", anchor=(2.0 + 0.3 * i, 0, 0))
-        return b.build()
+    pinned to the world, and a chain released from horizontal 2 m away."""
+    b = e.SceneBuilder(**settings)
+    corners = [(0, 0, 0), (0.4, 0, 0), (0.4, 0, -0.4), (0, 0, -0.4)]
+    for i, c in enumerate(corners):
+        b.add_body(f"s{i}", e.Sphere(0.05), mass=1.0 if i else 10.0, position=c)
+    b.add_ball("pin", None, "s0", anchor=corners[0])
+    for i in range(4):
+        p, c = corners[i], corners[(i + 1) % 4]
+        b.add_ball(f"link{i}", f"s{i}", f"s{(i + 1) % 4}", anchor=tuple((np.add(p, c)) / 2))
+    for i in range(3):
+        b.add_body(f"c{i}", e.Sphere(0.05), mass=1.0, position=(2.0 + 0.3 * (i + 1), 0, 0))
+        b.add_ball(f"chain{i}", f"c{i - 1}" if i else None, f"c{i}", anchor=(2.0 + 0.3 * i, 0, 0))
+    return b.build()
 
-    off, on = ring_and_chain(joint_projection_passes=0), ring_and_chain(joint_projection_slop=1e-12)
+
+def test_articulations_with_gauss_seidel_loop_rows_are_not_projected():
+    """With Gauss-Seidel loop rows a projection of the tree alone would push the
+    error into the loop row: the ring steps exactly as without projection,
+    while the chain beside it in the same world is projected."""
+    off = ring_and_chain(joint_projection_passes=0, joint_loops="gauss_seidel")
+    on = ring_and_chain(joint_projection_slop=1e-12, joint_loops="gauss_seidel")
     a, b = off.initial_state(1), on.initial_state(1)
     for _ in range(60):
         e.step(off, a)
@@ -119,6 +122,22 @@ def test_articulations_with_loop_closing_joints_are_not_projected():
     for k in ("position", "orientation", "velocity", "angular_velocity"):
         assert np.array_equal(a.arrays[k][:, ring], b.arrays[k][:, ring]), k
     assert not np.array_equal(a.position[:, chain], b.position[:, chain])
+
+
+def test_loops_solved_with_the_tree_are_projected_with_it():
+    """Exact loop rows (the default) are projected with the tree: every anchor
+    of the ring, the loop-closing one too, ends each step within the slop."""
+    slop = 1e-5
+    off, on = ring_and_chain(joint_projection_passes=0), ring_and_chain(joint_projection_slop=slop)
+    assert on.joints.loop_rows is not None
+    a, b = off.initial_state(1), on.initial_state(1)
+    worst_off = worst_on = 0.0
+    for _ in range(60):
+        e.step(off, a)
+        e.step(on, b)
+        worst_off = max(worst_off, float(off.joints.anchor_error(a).max()))
+        worst_on = max(worst_on, float(on.joints.anchor_error(b).max()))
+    assert worst_on <= slop * (1 + 1e-6) < worst_off
 
 
 def test_a_projected_world_steps_alone_as_in_a_batch():
