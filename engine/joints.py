@@ -801,6 +801,7 @@ _SKEW_COL = np.array([4, 5, 3, 5, 3, 4])
 _SKEW_COMP = np.array([2, 1, 2, 0, 1, 0])
 _SKEW_SIGN = np.array([1.0, -1.0, -1.0, 1.0, 1.0, -1.0])
 _DIAG3 = np.arange(3)
+LOOP_SOLVE_BYTES = 256 * 2 ** 20  # most temporaries of one chunk of worlds in the loop solve
 LOOP_REGULARISATION = 1e-6  # of the largest diagonal entry, added to the loop rows' Schur complement
 ACTIVE_SET_TOLERANCE = 1e-6  # rad/s: a limit row closing faster than this after a solve joins the active set
 
@@ -1234,11 +1235,11 @@ class _TreeSolver(_Rows):
         la, lb, La, Lb, lmask, _ = loop_rows
         inv_m = model.inv_mass
 
-        def inv_mass_times(v):
-            """M⁻¹ v for per-body (W, N, 6, k) blocks."""
+        def inv_mass_times(v, worlds):
+            """M⁻¹ v for per-body (W, N, 6, k) blocks of the worlds ``worlds``."""
             out = np.empty(v.shape)
             out[..., :3, :] = v[..., :3, :] * inv_m[:, None, None]
-            out[..., 3:, :] = np.matmul(self.iinv, v[..., 3:, :])
+            out[..., 3:, :] = np.matmul(self.iinv[worlds], v[..., 3:, :])
             return out
 
         x_t, x_l = self.solve_coupled(tree_rows, loop_rows, rows, inv_mass_times)
@@ -1276,10 +1277,27 @@ class _TreeSolver(_Rows):
         ``tree_rows``, ``loop_rows``: ``jacobians`` of each. One column per used
         loop row: a 10x10 grid of ball joints pinned at two corners has 82
         loops, 246 columns, and stepped at 74 ms against 31 ms with
-        Gauss-Seidel loop rows. Returns x_T (W, nj, 6), x_L (W, nl, 6)."""
-        a, b, Ja, Jb, mask, r = tree_rows
-        la, lb, La, Lb, lmask, lr = loop_rows
-        factors = self._factor(Ja, Jb, mask, M)
+        Gauss-Seidel loop rows. Returns x_T (W, nj, 6), x_L (W, nl, 6).
+
+        Its temporaries hold bodies x loop rows per world (about 5 MB for that
+        grid), so the worlds go through in chunks of at most
+        ``LOOP_SOLVE_BYTES``; each world's arithmetic is its own either way.
+        ``inv_metric_times(v, worlds)`` takes the chunk's world slice."""
+        W, nl = loop_rows[5].shape[:2]
+        n_rows = tree_rows[5].shape[1] + nl
+        per_world = 8 * rows.used_rows.size * 6 * (2 * self.num_bodies + n_rows)
+        chunk = max(1, LOOP_SOLVE_BYTES // max(per_world, 1))
+        if W <= chunk:
+            return self._solve_coupled(tree_rows, loop_rows, rows, inv_metric_times, M, slice(None))
+        parts = [self._solve_coupled(tree_rows, loop_rows, rows, inv_metric_times, M, slice(w, min(w + chunk, W)))
+                 for w in range(0, W, chunk)]
+        return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
+
+    def _solve_coupled(self, tree_rows, loop_rows, rows, inv_metric_times, M, worlds):
+        """``solve_coupled`` for the worlds of the slice ``worlds``."""
+        a, b, Ja, Jb, mask, r = (x if i < 2 else x[worlds] for i, x in enumerate(tree_rows))
+        la, lb, La, Lb, lmask, lr = (x if i < 2 else x[worlds] for i, x in enumerate(loop_rows))
+        factors = self._factor(Ja, Jb, mask, (self.M if M is None else M)[worlds])
         W, nl = lr.shape[:2]
 
         def rows_of(JA, JB, ia, ib, v):
@@ -1292,9 +1310,9 @@ class _TreeSolver(_Rows):
         m = used.size
         eye = np.zeros((W, nl * 6, m))
         eye[:, used, np.arange(m)] = 1.0
-        G = inv_metric_times(self.body_columns(La, Lb, eye.reshape(W, nl, 6, m), rows))
+        G = inv_metric_times(self.body_columns(La, Lb, eye.reshape(W, nl, 6, m), rows), worlds)
         X = self._substitute_columns(factors, rows_of(Ja, Jb, a, b, G))  # K_TT⁻¹ K_TL (W, nj, 6, m)
-        V = inv_metric_times(self.body_columns(Ja, Jb, X))
+        V = inv_metric_times(self.body_columns(Ja, Jb, X), worlds)
         S = (rows_of(La, Lb, la, lb, G) - rows_of(La, Lb, la, lb, V)).reshape(W, nl * 6, m)[:, used]
         # Rows of a straight chain between two pins are redundant (a 10x10 grid
         # pinned at two corners of one edge): a relative 1e-6 on the diagonal
@@ -1303,7 +1321,7 @@ class _TreeSolver(_Rows):
         lm = lmask.reshape(W, nl * 6)[:, used]
         S[:, diag, diag] += (1.0 - lm) + LOOP_REGULARISATION * S[:, diag, diag].max(axis=1, keepdims=True)
         y = self._substitute_columns(factors, r[..., None])  # K_TT⁻¹ r_T
-        Ky = rows_of(La, Lb, la, lb, inv_metric_times(self.body_columns(Ja, Jb, y)))
+        Ky = rows_of(La, Lb, la, lb, inv_metric_times(self.body_columns(Ja, Jb, y), worlds))
         rhs = (lr[..., None] - Ky).reshape(W, nl * 6, 1)[:, used] * lm[..., None]
         x_used = np.linalg.solve(S, rhs)  # (W, m, 1)
         x_t = (y - np.matmul(X, x_used[:, None]))[..., 0]

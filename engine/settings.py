@@ -77,9 +77,10 @@ class Settings:
         (``benchmarks.stability``, 10x10 grid of ball joints pinned at two
         corners, 10 s): anchor error 6.7 mm exact against 39.8 mm, for 2.4
         times the step cost (one dense solve of 3 rows per ball-joint loop per
-        sweep). Its temporaries grow with worlds x bodies x loop rows: about
-        5 MB per world for that grid (nothing for a scene without loops). Not
-        with ``joint_limits_in_tree`` (then Gauss-Seidel).
+        sweep). Its temporaries grow with bodies x loop rows, about 5 MB per
+        world for that grid (nothing for a scene without loops); batches go
+        through in chunks of worlds of at most 256 MB. Not when
+        ``joint_limits_in_tree`` puts limits in the tree (then Gauss-Seidel).
     joint_geometric_stiffness: with the tree solver, add to every tree joint
         (free articulations: ``free_joint_geometric_stiffness``) its
         geometric stiffness h²|F|(|r|² I - r rᵀ)/|r| to the inertia its bodies

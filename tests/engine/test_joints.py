@@ -511,3 +511,18 @@ def test_redundant_loop_rows_stay_finite():
     model = b.build()
     worst, rise, state = swing(model, 120)
     assert np.isfinite(state.position).all() and worst < 0.01 and rise < 1e-3
+
+
+def test_loop_solve_in_chunks_of_worlds_gives_the_same_bits(monkeypatch):
+    import engine.joints as joints_module
+
+    model = four_bar()
+    start = model.initial_state(5)
+    start.angular_velocity[:, 1:4, 1] = np.linspace(-2.0, 2.0, 5)[:, None]
+    whole, chunked = start.copy(), start.copy()
+    for _ in range(10):
+        e.step(model, whole)
+    monkeypatch.setattr(joints_module, "LOOP_SOLVE_BYTES", 1)  # one world per chunk
+    for _ in range(10):
+        e.step(model, chunked)
+    assert chunked.equal(whole)
