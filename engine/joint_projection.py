@@ -168,6 +168,11 @@ def _metric(tree, model, state, weight, worlds):
     if rows is not None:
         _add_contact_metric(P, rows, model, state, weight)
     M = tree.M[worlds] + P[worlds][:, tree.t.bodies]
+    # A world already diverging gets the identity: its projection is garbage,
+    # and it is reported non-finite after the step instead of stopping the batch.
+    bad = ~np.isfinite(M).all(axis=(1, 2, 3))
+    if bad.any():
+        M[bad] = np.eye(6)
     M_inv = np.zeros((worlds.size, N, 6, 6))
     M_inv[:, tree.t.bodies] = np.linalg.inv(M)
     return M, M_inv

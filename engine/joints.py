@@ -1284,8 +1284,10 @@ class _TreeSolver(_Rows):
         ``LOOP_SOLVE_BYTES``; each world's arithmetic is its own either way.
         ``inv_metric_times(v, worlds)`` takes the chunk's world slice."""
         W, nl = loop_rows[5].shape[:2]
-        n_rows = tree_rows[5].shape[1] + nl
-        per_world = 8 * rows.used_rows.size * 6 * (2 * self.num_bodies + n_rows)
+        # (W, n, 6, m) float64 blocks alive at once: G, V and a product per
+        # body, the substitution's six per tree joint, four per loop joint
+        # (an over-estimate of the measured peak: 11 MB a world for the grid).
+        per_world = 8 * 6 * rows.used_rows.size * (3 * self.num_bodies + 6 * tree_rows[5].shape[1] + 4 * nl)
         chunk = max(1, LOOP_SOLVE_BYTES // max(per_world, 1))
         if W <= chunk:
             return self._solve_coupled(tree_rows, loop_rows, rows, inv_metric_times, M, slice(None))
@@ -1323,6 +1325,11 @@ class _TreeSolver(_Rows):
         y = self._substitute_columns(factors, r[..., None])  # K_TT⁻¹ r_T
         Ky = rows_of(La, Lb, la, lb, inv_metric_times(self.body_columns(Ja, Jb, y), worlds))
         rhs = (lr[..., None] - Ky).reshape(W, nl * 6, 1)[:, used] * lm[..., None]
+        # A world already diverging (non-finite S) is solved as identity rows:
+        # it is reported non-finite after the step instead of stopping the batch.
+        bad = ~np.isfinite(S).all(axis=(1, 2))
+        if bad.any():
+            S[bad] = np.eye(m)
         x_used = np.linalg.solve(S, rhs)  # (W, m, 1)
         x_t = (y - np.matmul(X, x_used[:, None]))[..., 0]
         x_l = np.zeros((W, nl * 6))

@@ -36,7 +36,7 @@ def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
         return a[..., _YZX] * b[..., _ZXY] - a[..., _ZXY] * b[..., _YZX]
     ax, ay, az = a[..., 0], a[..., 1], a[..., 2]
     bx, by, bz = b[..., 0], b[..., 1], b[..., 2]
-    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape), dtype=np.result_type(a, b))
     np.subtract(ay * bz, az * by, out=out[..., 0])
     np.subtract(az * bx, ax * bz, out=out[..., 1])
     np.subtract(ax * by, ay * bx, out=out[..., 2])
@@ -195,7 +195,7 @@ def mat_vec(m: np.ndarray, v: np.ndarray) -> np.ndarray:
         out += m[..., 1] * v[..., 1:2]
         out += m[..., 2] * v[..., 2:3]
         return out
-    out = np.empty(np.broadcast_shapes(m.shape[:-1], v.shape))
+    out = np.empty(np.broadcast_shapes(m.shape[:-1], v.shape), dtype=np.result_type(m, v))
     v0, v1, v2 = v[..., 0], v[..., 1], v[..., 2]
     for i in range(3):
         row = m[..., i, 0] * v0

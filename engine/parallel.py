@@ -4,21 +4,23 @@ A step has no coupling between worlds, and each world's arithmetic is its
 own (the step never lets a result depend on how many worlds share a call), so
 W worlds can be cut into contiguous slices and each slice stepped in its own
 process: the result is bit for bit the single-process step. The state's arrays
-move into one block of shared memory that the workers map (forked, with the
-model as it was when the stepper was made); a step sends each worker its
+move into one anonymous shared mapping that the workers inherit (forked, with
+the model as it was when the stepper was made); a step sends each worker its
 slice of the control through a pipe and waits for all of them.
 
-On this 2-core machine the ceiling (two processes each stepping half the
-worlds, no messages) was 1.35x at W = 64, 1.6x at 256 and 1.7x at 1024 over
-one process: memory bandwidth, not cores, bounds the large batches.
-``python -m benchmarks.throughput --processes 2`` measures the stepper.
+On this 2-core machine two processes stepped the ragdoll on the ground 1.3x
+as fast as one at W = 64, 1.6x at 256 and 1.5x at 1024 (in the air 1.9x),
+and slower at W = 16 (``python -m benchmarks.throughput --processes 2``, the
+README's table); two separate processes each stepping half the worlds, with
+no messages, were 1.35x, 1.6x and 1.7x: memory bandwidth, not cores, bounds
+the large batches.
 """
 
 from __future__ import annotations
 
+import mmap
 import multiprocessing as mp
 from dataclasses import replace
-from multiprocessing import shared_memory
 
 import numpy as np
 
@@ -34,11 +36,13 @@ class ParallelStepper:
     """Step ``state`` (W worlds of ``model``) in ``processes`` worker processes.
 
     ``state``'s arrays are replaced by arrays in shared memory holding the same
-    values (take references to them after this, not before); read and write
-    the state between steps as usual (``assign``, ``apply_impulse``, ...), the
-    workers see it. The workers keep the model as it was at construction.
-    Needs the ``fork`` start method (Linux). Use as a context manager or call
-    ``close``.
+    values (take references to them after this, not before; they stay valid
+    after ``close``); read and write the state between steps as usual
+    (``assign``, ``apply_impulse``, ...), the workers see it. The workers keep
+    the model as it was at construction and step under the caller's numpy
+    error state. Needs the ``fork`` start method (Linux). Use as a context
+    manager or call ``close``; a worker that dies or fails closes the stepper
+    and raises ``RuntimeError``.
 
         with ParallelStepper(model, state, processes=2) as stepper:
             for _ in range(steps):
@@ -55,7 +59,7 @@ class ParallelStepper:
         self.model, self.state = model, state
         W = state.num_worlds
         self.bounds = np.linspace(0, W, min(int(processes), W) + 1).astype(int)
-        self._shm = _share(state)
+        _share(state)
         ctx = mp.get_context("fork")
         self._conns, self._procs = [], []
         try:
@@ -74,6 +78,9 @@ class ParallelStepper:
     def processes(self) -> int:
         return len(self._procs)
 
+    def _worlds(self, k):
+        return f"worker {k} (worlds {self.bounds[k]}-{self.bounds[k + 1] - 1})"
+
     def step(self, control: Control | None = None) -> State:
         """``engine.step(model, state, control)`` with the worlds split over
         the workers: the control is checked first (ValueError before anything
@@ -83,21 +90,32 @@ class ParallelStepper:
             raise RuntimeError("this ParallelStepper is closed")
         _check_state(self.model, self.state)
         control = _check_control(self.model, self.state, control)
-        for conn, lo, hi in zip(self._conns, self.bounds[:-1], self.bounds[1:]):
-            conn.send(None if control is None else _slice_control(control, lo, hi))
+        dead = [self._worlds(k) + " died" for k, p in enumerate(self._procs) if not p.is_alive()]
+        if dead:
+            self.close()
+            raise RuntimeError("parallel step failed: " + "; ".join(dead))
         events, nonfinite, failures = [], False, []
-        for k, conn in enumerate(self._conns):
-            try:
-                kind, payload = conn.recv()
-            except EOFError:
-                failures.append(f"worker {k} (worlds {self.bounds[k]}-{self.bounds[k + 1] - 1}) died")
-                continue
-            if kind == "ok":
+        err = np.geterr()
+        try:
+            for k, (conn, lo, hi) in enumerate(zip(self._conns, self.bounds[:-1], self.bounds[1:])):
+                try:
+                    conn.send((err, None if control is None else _slice_control(control, lo, hi)))
+                except (BrokenPipeError, OSError):
+                    failures.append(self._worlds(k) + " died")
+            for k, conn in enumerate(self._conns):
+                try:
+                    kind, payload = conn.recv()
+                except (EOFError, OSError):
+                    failures.append(self._worlds(k) + " died")
+                    continue
+                if kind == "error":
+                    failures.append(f"{self._worlds(k)}: {payload}")
+                    continue
                 events += payload
-            elif kind == "nonfinite":
-                nonfinite = True
-            else:
-                failures.append(f"worker {k} (worlds {self.bounds[k]}-{self.bounds[k + 1] - 1}): {payload}")
+                nonfinite |= kind == "nonfinite"
+        except BaseException:
+            self.close()  # a reply left unread would answer the next step
+            raise
         if failures:
             self.close()
             raise RuntimeError("parallel step failed: " + "; ".join(failures))
@@ -107,7 +125,8 @@ class ParallelStepper:
         return self.state
 
     def close(self) -> None:
-        """Stop the workers; the state keeps its values (copied out of shared memory)."""
+        """Stop the workers. The state's arrays stay where they are (shared
+        memory that lives as long as they do) and keep their values."""
         for conn in self._conns:
             try:
                 conn.send("stop")
@@ -121,16 +140,6 @@ class ParallelStepper:
         for conn in self._conns:
             conn.close()
         self._conns, self._procs = [], []
-        if self._shm is not None:
-            for k, v in list(self.state.arrays.items()):
-                self.state.arrays[k] = v.copy()
-            self._procs = []
-            try:
-                self._shm.close()
-            except BufferError:
-                pass  # arrays taken from the state before close still map it; freed with them
-            self._shm.unlink()
-            self._shm = None
 
     def __enter__(self):
         return self
@@ -145,18 +154,19 @@ class ParallelStepper:
             pass
 
 
-def _share(state: State):
-    """Move every array of ``state`` into one shared memory block, in place."""
+def _share(state: State) -> None:
+    """Move every array of ``state`` into one anonymous shared mapping, in
+    place. Forked workers inherit it; the arrays keep the mapping alive, so
+    it is freed with the last of them and nothing needs unlinking."""
     offsets, total = {}, 0
     for k, v in state.arrays.items():
         offsets[k] = total
         total += -(-v.nbytes // _ALIGN) * _ALIGN
-    shm = shared_memory.SharedMemory(create=True, size=max(total, 1))
+    block = mmap.mmap(-1, max(total, 1))  # MAP_SHARED | MAP_ANONYMOUS
     for k, v in list(state.arrays.items()):
-        shared = np.ndarray(v.shape, dtype=v.dtype, buffer=shm.buf, offset=offsets[k])
+        shared = np.frombuffer(block, dtype=v.dtype, count=v.size, offset=offsets[k]).reshape(v.shape)
         shared[...] = v
         state.arrays[k] = shared
-    return shm
 
 
 def _slice_control(control: Control, lo: int, hi: int) -> Control:
@@ -166,19 +176,25 @@ def _slice_control(control: Control, lo: int, hi: int) -> Control:
 
 def _worker(conn, model, state, lo, hi):
     """Step worlds [lo, hi) of ``state`` (views of the shared arrays) on each
-    control received, until "stop"."""
+    (numpy error state, control) received, until "stop"."""
     part = State({k: v[lo:hi] for k, v in state.arrays.items()})
     while True:
         try:
             msg = conn.recv()
-        except EOFError:
+        except (EOFError, OSError):
             return
         if isinstance(msg, str) and msg == "stop":
             return
+        err, control = msg
         try:
-            step(model, part, msg)
-            conn.send(("ok", [replace(e, world=e.world + lo) for e in part.events]))
+            with np.errstate(**err):
+                step(model, part, control)
+            conn.send(("ok", _global_events(part, lo)))
         except SimulationError:
-            conn.send(("nonfinite", None))
+            conn.send(("nonfinite", _global_events(part, lo)))
         except Exception as exc:  # reported by the parent, which closes the pool
             conn.send(("error", f"{type(exc).__name__}: {exc}"))
+
+
+def _global_events(part, lo):
+    return [replace(e, world=e.world + lo) for e in part.events]

@@ -81,6 +81,12 @@ class Settings:
         world for that grid (nothing for a scene without loops); batches go
         through in chunks of worlds of at most 256 MB. Not when
         ``joint_limits_in_tree`` puts limits in the tree (then Gauss-Seidel).
+        Redundant loop rows (a chain pinned taut at both ends, the grid's
+        pinned edge) carry a load along the redundant direction that the
+        regularisation (1e-6 of the largest diagonal entry), not the physics,
+        sets: it moves nothing, but a break threshold reads it (a taut 3-link
+        chain of 2.9 N: up to 1400 N). For breakable joints in such loops use
+        "gauss_seidel".
     joint_geometric_stiffness: with the tree solver, add to every tree joint
         (free articulations: ``free_joint_geometric_stiffness``) its
         geometric stiffness h²|F|(|r|² I - r rᵀ)/|r| to the inertia its bodies

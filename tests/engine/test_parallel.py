@@ -120,3 +120,45 @@ def test_bad_arguments_and_a_closed_stepper():
     with pytest.raises(RuntimeError, match="closed"):
         stepper.step()
     e.step(model, state)  # the state is an ordinary state again
+
+
+def test_arrays_taken_before_close_stay_readable():
+    model = ragdoll_on_ground()
+    state = model.initial_state(2)
+    stepper = e.ParallelStepper(model, state, processes=2)
+    position = state.position  # a reference into the shared memory
+    stepper.step()
+    stepper.close()
+    assert np.array_equal(position, state.position) and np.isfinite(position).all()
+    position[0, 0, 0] = 1.0  # still writable, still the state's array
+    assert state.position[0, 0, 0] == 1.0
+
+
+def test_a_dead_worker_closes_the_stepper_with_a_clear_error():
+    model = ragdoll_on_ground()
+    state = model.initial_state(4)
+    stepper = e.ParallelStepper(model, state, processes=2)
+    stepper.step()
+    stepper._procs[1].kill()
+    stepper._procs[1].join()
+    before = state.copy()
+    with pytest.raises(RuntimeError, match=r"worker 1 \(worlds 2-3\) died"):
+        stepper.step()
+    assert state.equal(before)  # no worker stepped
+    with pytest.raises(RuntimeError, match="closed"):
+        stepper.step()
+
+
+def test_events_of_a_worker_with_a_non_finite_world_are_kept():
+    b = e.SceneBuilder(gravity=None)
+    b.add_body("a", e.Sphere(0.1), mass=1.0, position=(0, 0, 0))
+    b.add_body("b", e.Sphere(0.1), mass=3.0, position=(0.3, 0, 0))
+    b.add_ball("j", "a", "b", anchor=(0.15, 0, 0), break_force=50.0)
+    model = b.build()
+    state = model.initial_state(4)
+    state.velocity[0, 0] = (-20.0, 0.0, 0.0)  # world 0 breaks its joint in the first step
+    state.velocity[1, 1, 0] = np.nan  # and world 1, in the same worker, turns non-finite
+    with e.ParallelStepper(model, state, processes=2) as stepper:
+        with pytest.raises(e.SimulationError, match="world 1"):
+            stepper.step()
+        assert [(ev.kind, ev.world) for ev in state.events] == [("joint_broken", 0)]
