@@ -432,10 +432,12 @@ class JointSet:
             hit[w, t.body_component[body]] = True
         on = hit[:, t.component]  # (W or 1, tree joints): soft
         if self.loop_rows is not None:
-            # Loop rows take their articulation's softness.
-            lp, lc = self.parent[self.loop_rows.joints], self.child[self.loop_rows.joints]
-            comp = np.where(t.body_component[lc] >= 0, t.body_component[lc], t.body_component[lp])
-            o = hit[:, comp][..., None]
+            # Loop rows take their articulations' softness (soft if either side's is).
+            o = np.zeros((hit.shape[0], self.loop_rows.joints.size), dtype=bool)
+            for side in (self.parent, self.child):
+                comp = t.body_component[side[self.loop_rows.joints]]
+                o |= hit[:, comp] & (comp >= 0)
+            o = o[..., None]
             self._loop_soft = Softness(np.where(o, soft.bias_rate, rigid.bias_rate),
                                        np.where(o, soft.mass_scale, rigid.mass_scale),
                                        np.where(o, soft.impulse_scale, rigid.impulse_scale))
