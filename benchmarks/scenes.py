@@ -416,6 +416,38 @@ def sphere_grid(offset=(0, 0, 0), n=10):
                  anchor_bound=0.01)
 
 
+def chain_loop(offset=(0, 0, 0), links=10):
+    """A slack chain of 1 kg links pinned at both ends (a loop through the
+    world) with a 20 kg ball hanging from its middle, released lying flat."""
+    o = np.asarray(offset, float)
+    b = _builder(o, ground=False)
+    L, r, span = 0.2, 0.03, 1.6
+    half = links // 2
+    # A V in the horizontal plane: each half reaches span / 2 along x.
+    c = span / 2 / (half * L)
+    dirs = (np.array([c, math.sqrt(1 - c * c), 0.0]), np.array([c, -math.sqrt(1 - c * c), 0.0]))
+    pin = o + (0, 0, 3.0)
+    p = pin.copy()
+    prev = None
+    for i in range(links):
+        d = dirs[0] if i < half else dirs[1]
+        axis = np.cross((0.0, 0.0, 1.0), d)
+        q = _q(axis / np.linalg.norm(axis), math.pi / 2)  # capsule axis (local z) along d
+        b.add_body(f"link{i}", e.Capsule(r, L / 2 - r), mass=1.0, position=p + d * L / 2, orientation=q)
+        b.add_ball(f"j{i}", prev, f"link{i}", anchor=p)
+        p = p + d * L
+        prev = f"link{i}"
+        if i == half - 1:
+            tip = p.copy()
+    b.add_ball(f"j{links}", prev, None, anchor=p)  # the second pin closes the loop
+    R = 0.12
+    b.add_body("ball", e.Sphere(R), mass=20.0, position=tip + (0, 0, -0.2))
+    b.add_ball("j_ball", f"link{half - 1}", "ball", anchor=tip)
+    # energy scale: the ball and chain falling about 1.5 m
+    return _make("chain_loop", f"{links} 1 kg links pinned at both ends with a 20 kg ball, swinging", b, o,
+                 duration=10.0, quick_duration=3.0, energy_tol=_energy_tol(30 * 9.81 * 1.5), anchor_bound=0.01)
+
+
 def ragdoll_impact(offset=(0, 0, 0), speed=100.0):
     o = np.asarray(offset, float)
     b = _builder(o)
@@ -582,6 +614,7 @@ SCENES = {
     "overlap_column": overlap_column,
     "ragdoll_pile_10": ragdoll_pile,
     "sphere_grid": sphere_grid,
+    "chain_loop": chain_loop,
     "ragdoll_impact_100": ragdoll_impact,
     "ragdoll_max_torque": ragdoll_max_torque,
     "large_dt_ragdoll": large_dt_ragdoll,
@@ -596,7 +629,8 @@ SCENES = {
 
 #: scenes that also run 10 km from the origin (all the static-scene cases)
 FAR_SCENES = ("mass_ratio_stack", "mass_ratio_sandwich", "ball_and_chain", "stack_20", "pyramid_10",
-              "overlap_recovery", "overlap_column", "ragdoll_pile_10", "sphere_grid", "ragdoll_impact_100",
+              "overlap_recovery", "overlap_column", "ragdoll_pile_10", "sphere_grid", "chain_loop",
+              "ragdoll_impact_100",
               "ragdoll_max_torque", "degenerate_capsules", "degenerate_edges", "degenerate_coincident")
 
 

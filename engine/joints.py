@@ -21,9 +21,10 @@ Loop-closing joints are solved with the tree, exactly, through the Schur
 complement of their rows (``_TreeSolver.solve_with_loops``; ``joint_loops``).
 
 Softness: the tree solve (``_TreeSolver``) is exact, but Gauss-Seidel rows
-solved after it (contacts, limits outside the tree) see
-one body's mass and fight rigid joints, so the tree joints of an articulation
-that such rows act on are soft (``joint_hertz``); those of an articulation
+solved after it (contacts, limits outside the tree) see one body's mass and
+fight rigid joints, so the tree joints of an articulation that such rows act
+on are soft (``joint_hertz``), as are those of an articulation with loops
+(rigid, they gained energy); those of an articulation
 nothing else acts on, a pendulum or a chain in the air, are rigid with
 geometric stiffness (``free_joint_hertz``, ``free_joint_geometric_stiffness``),
 chosen per world and step.
@@ -152,10 +153,13 @@ class JointSet:
                 lim_in_tree = in_tree
                 self.tree.limits = bool((has_limit | has_swing)[self.tree.joints].any())
         # Loop-closing joints solved with the tree (``_TreeSolver.solve_with_loops``),
-        # unless their rows stay Gauss-Seidel; not with limits in the tree.
+        # unless their rows stay Gauss-Seidel; not with limits in the tree, nor
+        # with rigid tree joints: they gained energy (chain_loop at ACCURATE:
+        # 34 J in 10 s, with Gauss-Seidel loop rows none).
         self.loop_rows = None
         in_loop_solve = np.zeros(J, dtype=bool)
-        if self.tree is not None and settings.joint_loops == "exact" and not self.tree.limits:
+        if (self.tree is not None and settings.joint_loops == "exact" and not self.tree.limits
+                and math.isfinite(settings.joint_hertz)):
             moving = model.dynamic[self.parent] | model.dynamic[self.child]
             loops = np.flatnonzero(~in_tree & moving)
             if loops.size:
@@ -196,7 +200,11 @@ class JointSet:
             # Articulations that Gauss-Seidel joint rows act on (loop-closing
             # joints, limits outside the tree): their tree joints stay soft.
             t = self.tree
-            gs_rows = (~in_tree & ~in_loop_solve) | ((has_limit | has_swing) & ~lim_in_tree)
+            # Loop-closing joints count whether solved exactly or not: rigid
+            # loops solved with the tree gained energy (a 20 kg ball on a slack
+            # chain pinned at both ends, benchmarks.stability chain_loop: 479 J
+            # in 10 s with geometric stiffness, 42 J without; soft: none).
+            gs_rows = ~in_tree | ((has_limit | has_swing) & ~lim_in_tree)
             t.gs_touched = np.zeros(t.num_components + 1, dtype=bool)
             t.gs_touched[t.body_component[self.parent[gs_rows]]] = True
             t.gs_touched[t.body_component[self.child[gs_rows]]] = True
@@ -432,15 +440,9 @@ class JointSet:
             hit[w, t.body_component[body]] = True
         on = hit[:, t.component]  # (W or 1, tree joints): soft
         if self.loop_rows is not None:
-            # Loop rows take their articulations' softness (soft if either side's is).
-            o = np.zeros((hit.shape[0], self.loop_rows.joints.size), dtype=bool)
-            for side in (self.parent, self.child):
-                comp = t.body_component[side[self.loop_rows.joints]]
-                o |= hit[:, comp] & (comp >= 0)
-            o = o[..., None]
-            self._loop_soft = Softness(np.where(o, soft.bias_rate, rigid.bias_rate),
-                                       np.where(o, soft.mass_scale, rigid.mass_scale),
-                                       np.where(o, soft.impulse_scale, rigid.impulse_scale))
+            # Exact loop rows take the Gauss-Seidel joints' softness (gs_joint_hertz).
+            self._loop_soft = self._soft
+            t.loop_geometric_weight = 1.0 if s.joint_geometric_stiffness else None
         geo_free = s.free_joint_geometric_stiffness
         if soft == rigid and s.joint_geometric_stiffness == geo_free:
             on = np.ones_like(on)
@@ -1020,6 +1022,7 @@ class _TreeSolver(_Rows):
         self.active_set_passes = settings.joint_active_set_passes
         self.component, self.num_components, self.body_component = t.component, t.num_components, t.body_component
         self.geometric_weight = None  # per step: 1, or (W, tree joints) weights, or None
+        self.loop_geometric_weight = None  # the same for the loop-closing rows solved with the tree
 
     def begin_step(self, js, model, state, h):
         t = self.t
@@ -1038,18 +1041,24 @@ class _TreeSolver(_Rows):
             # share h² K is added to the body's inertia in the joint solve, which
             # keeps light links between heavy loads from the explicit
             # instability of the constraint-force direction.
-            idx = self.joints
-            _, _, _, _, ra, rb = js.frames(state, idx)
-            lam = state.joint_linear_impulse[:, idx]
-            f = np.sqrt(dot(lam, lam)) * h * self.geometric_weight  # h² |F| = h |λ|
+            # Loop-closing joints solved with the tree carry load too: without
+            # theirs, a 20 kg ball on a chain pinned at both ends gained 12 J in
+            # 3 s (benchmarks.stability chain_loop).
             G = np.zeros((W, model.num_bodies, 3, 3))
-            for body, r in ((js.parent[idx], ra), (js.child[idx], rb)):
-                rn = np.sqrt(dot(r, r))
-                g = f / np.maximum(rn, 1e-12)
-                K = -r[..., :, None] * r[..., None, :]
-                for k in range(3):
-                    K[..., k, k] += rn * rn
-                np.add.at(G, (slice(None), body), g[..., None, None] * K)
+            parts = [(self.joints, self.geometric_weight)]
+            if js.loop_rows is not None and self.loop_geometric_weight is not None:
+                parts.append((js.loop_rows.joints, self.loop_geometric_weight))
+            for idx, weight in parts:
+                _, _, _, _, ra, rb = js.frames(state, idx)
+                lam = state.joint_linear_impulse[:, idx]
+                f = np.sqrt(dot(lam, lam)) * h * weight  # h² |F| = h |λ|
+                for body, r in ((js.parent[idx], ra), (js.child[idx], rb)):
+                    rn = np.sqrt(dot(r, r))
+                    g = f / np.maximum(rn, 1e-12)
+                    K = -r[..., :, None] * r[..., None, :]
+                    for k in range(3):
+                        K[..., k, k] += rn * rn
+                    np.add.at(G, (slice(None), body), g[..., None, None] * K)
             # Capped at a few times the body's own inertia: the stiffness grows with
             # the load, and the load needed to turn a heavier body grows with it.
             G = G[:, b]
@@ -1278,7 +1287,7 @@ class _TreeSolver(_Rows):
         (Baraff 1996, section 7: loops by the tree plus a small dense system).
         ``tree_rows``, ``loop_rows``: ``jacobians`` of each. One column per used
         loop row: a 10x10 grid of ball joints pinned at two corners has 82
-        loops, 246 columns, and stepped at 74 ms against 31 ms with
+        loops, 246 columns, and stepped at 74-83 ms against 31 ms with
         Gauss-Seidel loop rows. Returns x_T (W, nj, 6), x_L (W, nl, 6).
 
         Its temporaries hold bodies x loop rows per world (about 5 MB for that

@@ -73,20 +73,27 @@ class Settings:
         that close a loop (a grid, a four-bar, a chain pinned at both ends)
         are solved together with the tree rows, exactly, through the dense
         Schur complement of the loop rows (Baraff 1996); "gauss_seidel": they
-        are soft Gauss-Seidel rows after the tree solve, as before. Measured
-        (``benchmarks.stability``, 10x10 grid of ball joints pinned at two
-        corners, 10 s): anchor error 6.7 mm exact against 39.8 mm, for 2.4
-        times the step cost (one dense solve of 3 rows per ball-joint loop per
-        sweep). Its temporaries grow with bodies x loop rows, about 5 MB per
-        world for that grid (nothing for a scene without loops); batches go
-        through in chunks of worlds of at most 256 MB. Not when
-        ``joint_limits_in_tree`` puts limits in the tree (then Gauss-Seidel).
-        Redundant loop rows (a chain pinned taut at both ends, the grid's
-        pinned edge) carry a load along the redundant direction that the
-        regularisation (1e-6 of the largest diagonal entry), not the physics,
-        sets: it moves nothing, but a break threshold reads it (a taut 3-link
-        chain of 2.9 N: up to 1400 N). For breakable joints in such loops use
-        "gauss_seidel".
+        are Gauss-Seidel rows after the tree solve, as before. Either way an
+        articulation with loops is soft (``joint_hertz``): rigid loops solved
+        exactly gained energy (``benchmarks.stability`` chain_loop, a 20 kg
+        ball on a slack chain pinned at both ends: 479 J in 10 s with
+        geometric stiffness, 42 J without; soft, none). Measured over 10 s: the
+        10x10 grid of ball joints pinned at two corners opens by 10.4 mm
+        exact against 39.8 mm (10 km out 12.4 mm), for about 2.5 times the
+        step cost (one dense solve of 3 rows per ball-joint loop per sweep);
+        chain_loop 1.1 mm against 10.8 mm. Its temporaries grow with bodies x
+        loop rows, about 11 MB per world for that grid (nothing for a scene
+        without loops); batches go through in chunks of worlds of at most
+        256 MB. Only with soft tree joints (finite ``joint_hertz``; not at
+        ``ACCURATE``): with rigid ones the exact loops gained energy (chain_loop
+        at ACCURATE: 34 J in 10 s, 19 J with its tight post-stabilisation;
+        Gauss-Seidel loop rows none), and not when ``joint_limits_in_tree``
+        puts limits in the tree; those loops stay Gauss-Seidel. Redundant loop rows (a chain pinned taut at both
+        ends, the grid's pinned edge) carry a load along the redundant
+        direction that the regularisation (1e-6 of the largest diagonal
+        entry), not the physics, sets: it moves nothing, but a break threshold
+        reads it (a taut 3-link chain of 2.9 N: up to 1400 N). For breakable
+        joints in such loops use "gauss_seidel".
     joint_geometric_stiffness: with the tree solver, add to every tree joint
         (free articulations: ``free_joint_geometric_stiffness``) its
         geometric stiffness h²|F|(|r|² I - r rᵀ)/|r| to the inertia its bodies
@@ -110,10 +117,10 @@ class Settings:
         swings 16° past its cone within a substep. On in ``ACCURATE``.
     joint_active_set_passes: most factorisations per sweep for that active set.
     joint_hertz, joint_damping_ratio: softness of the joints the tree solver
-        solves in an articulation that Gauss-Seidel rows act on: a contact
-        this step, a limit outside the tree, a loop-closing joint with
-        ``joint_loops`` "gauss_seidel" (Hz, -; loop rows solved exactly take
-        their articulation's softness);
+        solves in an articulation that Gauss-Seidel rows act on or that
+        has loops: a contact this step, a limit outside the tree, a
+        loop-closing joint (Hz, -; loop rows solved exactly take their
+        articulation's softness);
         capped at half the substep rate (hω <= π); ``joint_hertz = inf`` makes
         them rigid (full bias C/h). The default 60 Hz, ζ 2 lets a dropped
         ragdoll come to rest; rigid, its contacts (which see one body's mass)

@@ -479,11 +479,12 @@ def test_loop_closing_joint_is_solved_with_the_tree():
     exact = four_bar()
     assert exact.joints.loop_rows is not None and exact.joints.loop_rows.joints.size == 1
     # The four-bar swings 4 s: the exact solve holds every anchor within 1 mm and
-    # gains no energy; the Gauss-Seidel loop row (soft) lets it open by more.
+    # gains no energy; the Gauss-Seidel loop row lets it open by more (both
+    # soft: an articulation with loops takes joint_hertz).
     worst, rise, _ = swing(exact, 240)
     assert worst < 1e-3 and rise < 1e-3 * 4 * 9.81 * 0.4
     worst_gs, _, _ = swing(four_bar(joint_loops="gauss_seidel"), 240)
-    assert worst_gs > 3 * worst
+    assert worst_gs > 1.2 * worst
 
 
 def test_loop_solve_is_the_same_alone_and_in_a_batch():

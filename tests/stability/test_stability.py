@@ -88,6 +88,7 @@ FAST = {
     "overlap_recovery_2d": (lambda: sc.overlap_recovery(depth=1), 3.0),
     "ragdoll_pile_2": (lambda: sc.ragdoll_pile(count=2), 1.0),
     "sphere_grid": (lambda: sc.sphere_grid(), 1.0),
+    "chain_loop": (lambda: sc.chain_loop(), 3.0),
     "ragdoll_impact_100": (lambda: sc.ragdoll_impact(), 0.5),
     "large_dt_ragdoll": (lambda: sc.large_dt_ragdoll(), 2.0),
     "large_dt_stack": (lambda: sc.large_dt_stack(n=6), 3.0),
@@ -122,10 +123,13 @@ SLOW_XFAIL = {
                 "N·m/rad, is below the about 5400 a column of 20 such boxes needs; 8 substeps at 120 Hz "
                 "hold it)",
     "ragdoll_pile_10": "measured (quick run): anchor error 1.9 cm > 1 cm, penetration 5.2 cm > 5 cm",
+    "sphere_grid": "measured (full run): anchor error 1.04 cm > 1 cm (10 km out 1.24 cm; 3.98 cm with "
+                   "Gauss-Seidel loop rows, 4.9 mm in the fast test's 1 s)",
     "large_dt_ragdoll": "measured (quick run): anchor error 4.0 cm > 1 cm (the joint post-stabilisation's slop), "
                         "penetration 4.0 cm > 3 cm",
 }
-SLOW_XFAIL["stack_20_far"] = SLOW_XFAIL["stack_20"]
+for _n in ("stack_20", "sphere_grid"):
+    SLOW_XFAIL[_n + "_far"] = SLOW_XFAIL[_n]
 SLOW_XFAIL["ragdoll_pile_10_far"] = SLOW_XFAIL["ragdoll_pile_10"]
 
 
