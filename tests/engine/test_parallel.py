@@ -61,12 +61,17 @@ def test_the_parent_writes_between_steps_reach_the_workers():
         assert shared.equal(serial)
 
 
-def test_events_carry_the_states_world_indices():
+def breakable_pair():
+    """Two free spheres joined by a ball joint that breaks beyond 50 N, no gravity."""
     b = e.SceneBuilder(gravity=None)
     b.add_body("a", e.Sphere(0.1), mass=1.0, position=(0, 0, 0))
     b.add_body("b", e.Sphere(0.1), mass=3.0, position=(0.3, 0, 0))
     b.add_ball("j", "a", "b", anchor=(0.15, 0, 0), break_force=50.0)
-    model = b.build()
+    return b.build()
+
+
+def test_events_carry_the_states_world_indices():
+    model = breakable_pair()
     state = model.initial_state(4)
     state.velocity[3, 0] = (-2.0, 0.0, 0.0)  # only world 3 pulls its joint apart
     state.velocity[3, 1] = (1.0, 0.5, 0.0)
@@ -150,11 +155,7 @@ def test_a_dead_worker_closes_the_stepper_with_a_clear_error():
 
 
 def test_events_of_a_worker_with_a_non_finite_world_are_kept():
-    b = e.SceneBuilder(gravity=None)
-    b.add_body("a", e.Sphere(0.1), mass=1.0, position=(0, 0, 0))
-    b.add_body("b", e.Sphere(0.1), mass=3.0, position=(0.3, 0, 0))
-    b.add_ball("j", "a", "b", anchor=(0.15, 0, 0), break_force=50.0)
-    model = b.build()
+    model = breakable_pair()
     state = model.initial_state(4)
     state.velocity[0, 0] = (-20.0, 0.0, 0.0)  # world 0 breaks its joint in the first step
     state.velocity[1, 1, 0] = np.nan  # and world 1, in the same worker, turns non-finite
