@@ -89,13 +89,12 @@ def _project(js, tree, state, keep, slop, metric, passes):
         C *= keep[:, None]
         _beyond_slop(C, slop)
         # Merit: the 2-norm of the errors beyond the slop, the angular rows at the slop's lever (m).
-        err = (C[..., :3] ** 2).sum(axis=(1, 2)) + ANGULAR_SLOP_LEVER ** 2 * (C[..., 3:] ** 2).sum(axis=(1, 2))
+        err = _squared_error(C)
         if loops is not None:
             lrows = tree.jacobians(js, state, True, 1.0, velocity=False, max_push_out=np.inf,
                                    max_angular_push_out=np.inf, rows=loops)
-            CL = lrows[5]
-            _beyond_slop(CL, slop)
-            err = err + (CL[..., :3] ** 2).sum(axis=(1, 2)) + ANGULAR_SLOP_LEVER ** 2 * (CL[..., 3:] ** 2).sum(axis=(1, 2))
+            _beyond_slop(lrows[5], slop)
+            err = err + _squared_error(lrows[5])
         err = np.sqrt(err)
         if before is not None:
             # A pass that left a world's error larger is taken back, and that
@@ -116,8 +115,8 @@ def _project(js, tree, state, keep, slop, metric, passes):
         else:
             # Loop-closing joints (solved exactly with the tree): the coupled solve in the same metric.
             mu, mu_l = tree.solve_coupled(rows, lrows, loops, lambda v, w: np.matmul(M_inv[w], v), M)
-            imp = tree.body_columns(Ja, Jb, -mu[..., None]) + tree.body_columns(lrows[2], lrows[3], -mu_l[..., None], loops)
-            d = np.matmul(M_inv, imp)[..., 0]
+            imp = tree._body_impulses(Ja, Jb, -mu) + tree._body_impulses(lrows[2], lrows[3], -mu_l, loops)
+            d = np.matmul(M_inv, imp[..., None])[..., 0]
         # At most MAX_TURN rad for any body per pass, the whole world's step scaled alike.
         turn = np.sqrt((d[..., 3:] ** 2).sum(axis=-1)).max(axis=1)
         d *= (MAX_TURN / np.maximum(turn, MAX_TURN))[:, None, None]
@@ -146,6 +145,11 @@ def _worlds_beyond_slop(js, tree, state, keep, slop):
         beyond = (np.sqrt((lin ** 2).sum(axis=-1)) > slop[0]) | (locked & (np.sqrt((ang ** 2).sum(axis=-1)) > slop[1]))
         need |= (beyond & use & (js._active(state, idx) > 0)).any(axis=1)
     return need
+
+
+def _squared_error(C):
+    """Σ of the squared rows (W,), the angular rows (3-5) at ANGULAR_SLOP_LEVER (m²)."""
+    return (C[..., :3] ** 2).sum(axis=(1, 2)) + ANGULAR_SLOP_LEVER ** 2 * (C[..., 3:] ** 2).sum(axis=(1, 2))
 
 
 def _beyond_slop(C, slop):

@@ -820,16 +820,6 @@ def _mtm(A, B):
     return np.matmul(np.swapaxes(A, -1, -2), B)
 
 
-def _mv(A, x):
-    """A x for (..., n, k), (..., k)."""
-    return np.matmul(A, x[..., None])[..., 0]
-
-
-def _mtv(A, x):
-    """Aᵀ x for (..., k, n), (..., k)."""
-    return np.matmul(np.swapaxes(A, -1, -2), x[..., None])[..., 0]
-
-
 def _inv_definite(A):
     """Inverse of definite (..., n, n) matrices."""
     return np.linalg.inv(A)
@@ -1227,12 +1217,9 @@ class _TreeSolver(_Rows):
         dw = mat_vec(self.iinv, self._body_impulses(Ja, Jb, d)[..., 3:])
         return lr + mat_vec(lrows, dw[:, b] - dw[:, a])
 
-    def _body_impulses(self, Ja, Jb, d):
+    def _body_impulses(self, Ja, Jb, d, rows=None):
         """Jᵀ d summed per body: (W, num_bodies, 6) linear and angular impulses."""
-        imp = np.zeros((d.shape[0], self.num_bodies, 6))
-        _scatter_add(imp, self.split_a, _mtv(Ja, d))
-        _scatter_add(imp, self.split_b, _mtv(Jb, d))
-        return imp
+        return self.body_columns(Ja, Jb, d[..., None], rows)[..., 0]
 
     def solve_with_loops(self, js, model, state, soft_tree, soft_loop, use_bias):
         """The tree rows and the loop-closing rows (``js.loop_rows``) solved
@@ -1254,17 +1241,8 @@ class _TreeSolver(_Rows):
             return out
 
         x_t, x_l = self.solve_coupled(tree_rows, loop_rows, rows, inv_mass_times)
-        d = (-ms_t * x_t - isc_t * self._lam(state)) * mask
-        self._apply(js, model, state, a, b, Ja, Jb, d)
-        idx = rows.joints
-        lam = np.concatenate((state.joint_linear_impulse[:, idx], state.joint_angular_impulse[:, idx]), axis=-1)
-        d = (-ms_l * x_l - isc_l * lam) * lmask
-        new = lam + d * rows.eq_mask
-        state.joint_linear_impulse[:, idx] = new[..., :3]
-        state.joint_angular_impulse[:, idx] = new[..., 3:]
-        imp = self.body_columns(La, Lb, d[..., None], rows)[..., 0]
-        state.velocity += imp[..., :3] * inv_m[:, None]
-        state.angular_velocity += mat_vec(self.iinv, imp[..., 3:])
+        self._apply(js, model, state, a, b, Ja, Jb, (-ms_t * x_t - isc_t * self._lam(state)) * mask)
+        self._apply(js, model, state, la, lb, La, Lb, (-ms_l * x_l - isc_l * self._lam(state, rows)) * lmask, rows)
 
     def body_columns(self, JA, JB, x, rows=None):
         """Σ Jᵀ x per body, (W, N, 6, k), from row blocks x (W, n, 6, k) of the
@@ -1347,19 +1325,20 @@ class _TreeSolver(_Rows):
         x_l[:, used] = x_used[..., 0]
         return x_t, x_l.reshape(W, nl, 6)
 
-    def _lam(self, state):
-        idx = self.joints
+    def _lam(self, state, rows=None):
+        """Accumulated equality-row impulses (W, n, 6) of the tree's joints (or of ``rows``)."""
+        idx = (self if rows is None else rows).joints
         return np.concatenate((state.joint_linear_impulse[:, idx], state.joint_angular_impulse[:, idx]), axis=-1)
 
-    def _apply(self, js, model, state, a, b, Ja, Jb, d):
-        """Accumulate the equality-row impulses d (rows 3..5 of limit-taken slots
-        are not stored here) and apply J_aᵀ d, J_bᵀ d."""
-        idx = self.joints
-        lam = self._lam(state)
-        new = lam + d * self.eq_mask
-        state.joint_linear_impulse[:, idx] = new[..., :3]
-        state.joint_angular_impulse[:, idx] = new[..., 3:]
-        imp = self._body_impulses(Ja, Jb, d)
+    def _apply(self, js, model, state, a, b, Ja, Jb, d, rows=None):
+        """Accumulate the equality-row impulses d of the tree's joints (or of
+        ``rows``; rows 3..5 of limit-taken slots are not stored here) and apply
+        J_aᵀ d, J_bᵀ d."""
+        rows = self if rows is None else rows
+        new = self._lam(state, rows) + d * rows.eq_mask
+        state.joint_linear_impulse[:, rows.joints] = new[..., :3]
+        state.joint_angular_impulse[:, rows.joints] = new[..., 3:]
+        imp = self._body_impulses(Ja, Jb, d, rows)
         state.velocity += imp[..., :3] * model.inv_mass[:, None]
         state.angular_velocity += mat_vec(self.iinv, imp[..., 3:])
 
