@@ -24,7 +24,7 @@ Softness: the tree solve (``_TreeSolver``) is exact, but Gauss-Seidel rows
 solved after it (contacts, limits outside the tree) see one body's mass and
 fight rigid joints, so the tree joints of an articulation that such rows act
 on are soft (``joint_hertz``), as are those of an articulation with loops
-(rigid, they gained energy); those of an articulation
+(rigid, they held their joints less well); those of an articulation
 nothing else acts on, a pendulum or a chain in the air, are rigid with
 geometric stiffness (``free_joint_hertz``, ``free_joint_geometric_stiffness``),
 chosen per world and step.
@@ -155,7 +155,7 @@ class JointSet:
         # Loop-closing joints solved with the tree (``_TreeSolver.solve_with_loops``),
         # unless their rows stay Gauss-Seidel; not with limits in the tree, nor
         # with rigid tree joints: they gained energy (chain_loop at ACCURATE:
-        # 34 J in 10 s, with Gauss-Seidel loop rows none).
+        # 62 J in 10 s, with Gauss-Seidel loop rows none).
         self.loop_rows = None
         in_loop_solve = np.zeros(J, dtype=bool)
         if (self.tree is not None and settings.joint_loops == "exact" and not self.tree.limits
@@ -201,9 +201,9 @@ class JointSet:
             # joints, limits outside the tree): their tree joints stay soft.
             t = self.tree
             # Loop-closing joints count whether solved exactly or not: rigid
-            # loops solved with the tree gained energy (a 20 kg ball on a slack
-            # chain pinned at both ends, benchmarks.stability chain_loop: 479 J
-            # in 10 s with geometric stiffness, 42 J without; soft: none).
+            # loops solved with the tree held their joints less well (a 20 kg
+            # ball on a slack chain pinned at both ends, benchmarks.stability
+            # chain_loop: 3.0 mm against 1.1 mm soft over 10 s).
             gs_rows = ~in_tree | ((has_limit | has_swing) & ~lim_in_tree)
             t.gs_touched = np.zeros(t.num_components + 1, dtype=bool)
             t.gs_touched[t.body_component[self.parent[gs_rows]]] = True
@@ -261,9 +261,22 @@ class JointSet:
             return self.parent[idx], self.child[idx], fpw[:, idx], fcw[:, idx], ra[:, idx], rb[:, idx]
         return self._compute_frames(state, idx)
 
-    def positions_moved(self):
-        """The bodies moved: frames cached within the step are stale."""
+    def positions_moved(self, model=None, state=None):
+        """The bodies moved: frames cached within the step are stale. Given
+        the model and state (within a step, after the substep's positions),
+        the world inverse inertias and the tree's metric follow the new
+        orientations too: the relax solve applying impulses through the
+        inertias of the substep's start pumped the spin of thin links (a
+        1 kg, 20 cm capsule, 7x lighter about its axis: a ball joint's
+        impulse at its end, through the inertia of a link tilted 0.01 rad
+        before, has a component along the new axis, 7x amplified; 250 rad/s
+        in 4 s and +40 J for a ball on a chain pinned at both ends,
+        benchmarks.stability chain_loop with rigid joints)."""
         self._frames = self._limits = self._swing_twist = None
+        if state is not None:
+            self._set_inertia(model, state)
+            if self.tree is not None and self.settings.solver != "thesis":
+                self.tree.begin_step(self, model, state, self._h)
 
     def limit_geometry(self, state, idx):
         """``_limit_rows`` of joints ``idx``; within a step computed once for
@@ -477,11 +490,6 @@ class JointSet:
     def warm_start(self, model, state):
         if self.breakable and self._substeps_done:
             self._add_load(state)  # λ at the end of the previous substep
-        if self.tree is not None and self._substeps_done:
-            # Inertias at this substep's orientations: fast-turning light links
-            # make the step's start values wrong by the end of the step.
-            self._set_inertia(model, state)
-            self.tree.begin_step(self, model, state, self._h)
         self._substeps_done += 1
         for color in self.colors:
             idx = color["all"]

@@ -74,11 +74,12 @@ class Settings:
         are solved together with the tree rows, exactly, through the dense
         Schur complement of the loop rows (Baraff 1996); "gauss_seidel": they
         are Gauss-Seidel rows after the tree solve, as before. Either way an
-        articulation with loops is soft (``joint_hertz``): rigid loops solved
-        exactly gained energy (``benchmarks.stability`` chain_loop, a 20 kg
-        ball on a slack chain pinned at both ends: 479 J in 10 s with
-        geometric stiffness, 42 J without; soft, none). Measured over 10 s: the
-        10x10 grid of ball joints pinned at two corners opens by 10.4 mm
+        articulation with loops is soft (``joint_hertz``): rigid, with its
+        loops solved exactly, it held its joints less well (``benchmarks.
+        stability`` chain_loop, a 20 kg ball on a slack chain pinned at both
+        ends: 3.0 mm against 1.1 mm over 10 s; the grid below 29 mm against
+        12 mm). Measured over 10 s: the
+        10x10 grid of ball joints pinned at two corners opens by 12.4 mm
         exact against 39.8 mm (10 km out 12.4 mm), for about 2.5 times the
         step cost (one dense solve of 3 rows per ball-joint loop per sweep);
         chain_loop 1.1 mm against 10.8 mm. Its temporaries grow with bodies x
@@ -86,8 +87,7 @@ class Settings:
         without loops); batches go through in chunks of worlds of at most
         256 MB. Only with soft tree joints (finite ``joint_hertz``; not at
         ``ACCURATE``): with rigid ones the exact loops gained energy (chain_loop
-        at ACCURATE: 34 J in 10 s, 19 J with its tight post-stabilisation;
-        Gauss-Seidel loop rows none), and not when ``joint_limits_in_tree``
+        at ACCURATE: 62 J in 10 s; Gauss-Seidel loop rows none), and not when ``joint_limits_in_tree``
         puts limits in the tree; those loops stay Gauss-Seidel. Redundant loop rows (a chain pinned taut at both
         ends, the grid's pinned edge) carry a load along the redundant
         direction that the regularisation (1e-6 of the largest diagonal
