@@ -154,8 +154,9 @@ class JointSet:
                 self.tree.limits = bool((has_limit | has_swing)[self.tree.joints].any())
         # Loop-closing joints solved with the tree (``_TreeSolver.solve_with_loops``),
         # unless their rows stay Gauss-Seidel; not with limits in the tree, nor
-        # with rigid tree joints: they gained energy (chain_loop at ACCURATE:
-        # 62 J in 10 s, with Gauss-Seidel loop rows none).
+        # with rigid tree joints: they gained energy (the 10x10 sphere grid at
+        # ACCURATE: 103 J in 10 s with rigid loop rows, 11 J with their
+        # regularisation at 1e-3; chain_loop with soft ones: 62 J).
         self.loop_rows = None
         in_loop_solve = np.zeros(J, dtype=bool)
         if (self.tree is not None and settings.joint_loops == "exact" and not self.tree.limits
@@ -453,8 +454,11 @@ class JointSet:
             hit[w, t.body_component[body]] = True
         on = hit[:, t.component]  # (W or 1, tree joints): soft
         if self.loop_rows is not None:
-            # Exact loop rows take the Gauss-Seidel joints' softness (gs_joint_hertz).
-            self._loop_soft = self._soft
+            # Exact loop rows take the softness of their articulation's tree
+            # joints (joint_hertz), so the coupled solve is one system, scaled
+            # alike (with rigid tree joints, soft loop rows gained 38 J in 10 s
+            # in chain_loop where rigid ones gained none).
+            self._loop_soft = soft
             t.loop_geometric_weight = 1.0 if s.joint_geometric_stiffness else None
         geo_free = s.free_joint_geometric_stiffness
         if soft == rigid and s.joint_geometric_stiffness == geo_free:

@@ -85,9 +85,11 @@ class Settings:
         chain_loop 1.1 mm against 10.8 mm. Its temporaries grow with bodies x
         loop rows, about 11 MB per world for that grid (nothing for a scene
         without loops); batches go through in chunks of worlds of at most
-        256 MB. Only with soft tree joints (finite ``joint_hertz``; not at
-        ``ACCURATE``): with rigid ones the exact loops gained energy (chain_loop
-        at ACCURATE: 62 J in 10 s; Gauss-Seidel loop rows none), and not when ``joint_limits_in_tree``
+        256 MB. Exact loop rows take the softness of their articulation's
+        tree joints (``joint_hertz``). Only with soft tree joints (finite
+        ``joint_hertz``; not at ``ACCURATE``): rigid, chain_loop held 0.2 mm
+        over 10 s at ``ACCURATE``, but the grid gained 103 J (11 J with the
+        regularisation below at 1e-3); and not when ``joint_limits_in_tree``
         puts limits in the tree; those loops stay Gauss-Seidel. Redundant loop rows (a chain pinned taut at both
         ends, the grid's pinned edge) carry a load along the redundant
         direction that the regularisation (1e-6 of the largest diagonal
