@@ -271,7 +271,7 @@ class JointSet:
         1 kg, 20 cm capsule, 7x lighter about its axis: a ball joint's
         impulse at its end, through the inertia of a link tilted 0.01 rad
         before, has a component along the new axis, 7x amplified; 250 rad/s
-        in 4 s and +40 J for a ball on a chain pinned at both ends,
+        in 4 s and +40 J in 5 s for a ball on a chain pinned at both ends,
         benchmarks.stability chain_loop with rigid joints)."""
         self._frames = self._limits = self._swing_twist = None
         if state is not None:

@@ -533,7 +533,7 @@ def thin_chain_axial_spin(**settings):
     """Largest spin (rad/s) of a link about its own axis, and the largest rise of
     the total energy (J), over 4 s of a chain of four thin 1 kg capsules (20 cm
     long, 3 cm radius: 8x lighter about their axis) on ball joints at their
-    ends, pinned at one end, released horizontal with a sideways swing."""
+    ends, pinned at one end, released horizontal while turning about the vertical."""
     b = e.SceneBuilder(**settings)
     x = np.array([1.0, 0.0, 0.0])
     q = quat_from_axis_angle(Y, math.pi / 2)  # capsule axis (local z) along x
@@ -565,7 +565,7 @@ def test_thin_links_keep_their_axial_spin():
     # (Euler's equations: I3 dω3/dt = (I1 - I2) ω1 ω2 = 0), so these links, started
     # without spin, stay without. Impulses applied through the inertias of the
     # substep's start after the positions moved pumped it (a chain pinned at
-    # both ends: 250 rad/s and +40 J in 4 s).
+    # both ends: 250 rad/s in 4 s, +40 J in 5 s).
     # What is left is the integrator's: its principal-axis splitting conserves
     # |L| and the energy but turns L between the axes by O(h²) (0.30 rad/s
     # here, 0.11 at 8 substeps; 80 rad/s and +2.2 J before).
