@@ -274,6 +274,8 @@ class JointSet:
         in 4 s and +40 J in 5 s for a ball on a chain pinned at both ends,
         benchmarks.stability chain_loop with rigid joints)."""
         self._frames = self._limits = self._swing_twist = None
+        if self.tree is not None:
+            self.tree._factored = None
         if state is not None:
             self._set_inertia(model, state)
             if self.tree is not None and self.settings.solver != "thesis":
@@ -405,6 +407,8 @@ class JointSet:
         the bodies with contact rows this step (None: no contacts)."""
         self._frames_on, self._frames, self._frames_state = True, None, state
         self._limits = self._swing_twist = None
+        if self.tree is not None:
+            self.tree._factored = None
         self._set_inertia(model, state)
         s = self.settings
         # Tree joints are stiffer than Gauss-Seidel rows: the tree solve is
@@ -1025,8 +1029,13 @@ class _TreeSolver(_Rows):
         self.component, self.num_components, self.body_component = t.component, t.num_components, t.body_component
         self.geometric_weight = None  # per step: 1, or (W, tree joints) weights, or None
         self.loop_geometric_weight = None  # the same for the loop-closing rows solved with the tree
+        self._factored = None  # (state, blocks, factors) of the current positions and metric (see solve)
 
     def begin_step(self, js, model, state, h):
+        """The bodies' metric M (W, tree bodies, 6, 6) at the state's
+        orientations: mass, world inertia and, with geometric stiffness, its
+        added inertia. Factors of earlier positions are dropped."""
+        self._factored = None
         t = self.t
         b = t.bodies
         W = state.orientation.shape[0]
@@ -1085,11 +1094,15 @@ class _TreeSolver(_Rows):
         right-hand side J·u + bias·C (without ``velocity``: bias·C alone); the
         bias is clamped to the joint push-out speeds unless other limits are
         given."""
-        if max_push_out is None:
-            max_push_out = js.settings.joint_max_push_out
-        if max_angular_push_out is None:
-            max_angular_push_out = js.settings.joint_max_angular_push_out
-        rows = self if rows is None else rows
+        blocks = self.blocks(js, state, self if rows is None else rows)
+        return self.right_hand_side(js, state, blocks, self if rows is None else rows, use_bias, bias_rate,
+                                    velocity, max_push_out, max_angular_push_out)
+
+    def blocks(self, js, state, rows):
+        """The part of ``jacobians`` that depends on the positions alone:
+        sides a, b, the joint frames and lever arms, the lock-row axes E
+        (W, nj, 3, 3), the Jacobian blocks Ja, Jb (W, nj, 6, 6) and the row
+        mask (W, nj, 6)."""
         idx = rows.joints
         a, b, fpw, fcw, ra, rb = js.frames(state, idx)
         shape = ra.shape
@@ -1112,7 +1125,18 @@ class _TreeSolver(_Rows):
         J[..., 3:, 3:] = E
         J *= mask[..., None]
         Jb, Ja = J[0], np.negative(J[1], out=J[1])
-        r = np.empty((W, nj, 6))
+        return a, b, fpw, fcw, ra, rb, E, Ja, Jb, mask
+
+    def right_hand_side(self, js, state, blocks, rows, use_bias, bias_rate, velocity=True, max_push_out=None,
+                        max_angular_push_out=None):
+        """``jacobians`` from the ``blocks`` of the current positions: (a, b,
+        Ja, Jb, mask, r) with r = J·u + bias·C (W, nj, 6)."""
+        if max_push_out is None:
+            max_push_out = js.settings.joint_max_push_out
+        if max_angular_push_out is None:
+            max_angular_push_out = js.settings.joint_max_angular_push_out
+        a, b, fpw, fcw, ra, rb, E, Ja, Jb, mask = blocks
+        r = np.empty(mask.shape)
         if velocity:
             va, vb = state.velocity[:, a], state.velocity[:, b]
             wa, wb = state.angular_velocity[:, a], state.angular_velocity[:, b]
@@ -1174,20 +1198,26 @@ class _TreeSolver(_Rows):
         return rows, r, sigma, exists, lower
 
     def solve(self, js, model, state, bias_rate, mass_scale, impulse_scale, use_bias, h):
-        t = self.t
-        nb = t.n_bodies
-        if self.limits:
-            lrows, lr, sigma, exists, lower = self.limit_rows(js, state, h, use_bias)
-        a, b, Ja, Jb, mask, r = self.jacobians(js, state, use_bias, bias_rate)
-        W = r.shape[0]
         if not self.limits:
-            # Factored afresh for each solve: reusing the biased solve's factors
-            # in the relax solve was measured 30% faster but let a 100 kg ball
-            # on a light chain gain energy (benchmarks.stability ball_and_chain_far).
-            x = self._factor_solve(Ja, Jb, mask, r)
+            # Factored once per set of positions and metric: the relax solve of
+            # one substep and the biased solve of the next see the same
+            # positions (only velocities change between them), so the second
+            # reuses the first's factors, the same numbers (5 factorisations a
+            # step instead of 8 at 4 substeps). Factors of a solve before the
+            # positions moved are never reused: the relax solve on the biased
+            # solve's factors let a 100 kg ball on a light chain gain energy
+            # (benchmarks.stability ball_and_chain_far).
+            if self._factored is None or self._factored[0] is not state:
+                blocks = self.blocks(js, state, self)
+                self._factored = (state, blocks, self._factor(blocks[7], blocks[8], blocks[9]))
+            _, blocks, factors = self._factored
+            a, b, Ja, Jb, mask, r = self.right_hand_side(js, state, blocks, self, use_bias, bias_rate)
+            x = self._substitute(factors, r)
             d = (-mass_scale * x - impulse_scale * self._lam(state)) * mask
             self._apply(js, model, state, a, b, Ja, Jb, d)
             return
+        lrows, lr, sigma, exists, lower = self.limit_rows(js, state, h, use_bias)
+        a, b, Ja, Jb, mask, r = self.jacobians(js, state, use_bias, bias_rate)
         # Active set over the limit rows: start from the rows the current
         # velocities would violate, drop rows that pull, re-solve.
         active = exists & (sigma * lr < 0)
