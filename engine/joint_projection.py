@@ -80,6 +80,7 @@ def _project(js, tree, state, keep, slop, metric, passes):
     """At most ``passes`` Gauss-Newton passes on ``state`` (positions,
     orientations and broken flags of the worlds being projected)."""
     M, M_inv = metric
+    M_inv_tree = M_inv[:, tree.t.bodies]  # the leaf bodies' pivots
     loops = js.loop_rows
     done = np.zeros(state.num_worlds, dtype=bool)
     before = None
@@ -110,7 +111,7 @@ def _project(js, tree, state, keep, slop, metric, passes):
             return
         mask *= keep[:, None]
         if loops is None:
-            mu = -tree._factor_solve(Ja, Jb, mask, C, M)
+            mu = -tree._factor_solve(Ja, Jb, mask, C, M, M_inv=M_inv_tree)
             d = np.matmul(M_inv, tree._body_impulses(Ja, Jb, mu)[..., None])[..., 0]
         else:
             # Loop-closing joints (solved exactly with the tree): the coupled solve in the same metric.
