@@ -91,6 +91,26 @@ def _color_rows(ka, kb, dyn_a, dyn_b, num_keys):
     return [order[bounds[i]:bounds[i + 1]] for i in range(c)]
 
 
+class _Block:
+    """The step-constant data of a set of rows (one colour), gathered once:
+    lever arms (R, P, 3), world inverse inertias (R, 3, 3), inverse masses
+    (R, 1), normal and tangents (R, 3), effective masses and friction
+    coefficients (R, P), validity; views of these replace a gather per point
+    and pass in the sweeps."""
+
+    def __init__(self, cr, rows):
+        self.rows = rows
+        self.ra, self.rb = cr.ra[rows], cr.rb[rows]
+        self.ia, self.ib = cr.ia[rows, 0], cr.ib[rows, 0]
+        self.inv_ma, self.inv_mb = cr.inv_ma[rows][:, None], cr.inv_mb[rows][:, None]
+        self.n, self.t1, self.t2 = cr.n[rows], cr.t1[rows], cr.t2[rows]
+        self.mn, self.mt1, self.mt2, self.mu = cr.mn[rows], cr.mt1[rows], cr.mt2[rows], cr.mu[rows]
+        self.valid = cr.valid[rows]
+        self.paired = cr.dyn_a[rows] & cr.dyn_b[rows]
+        self.ka, self.kb = cr.ka[rows], cr.kb[rows]
+        self.dyn_a, self.dyn_b = cr.dyn_a[rows], cr.dyn_b[rows]
+
+
 class ContactRows:
     """The contact rows of one step, with their impulses."""
 
@@ -167,30 +187,37 @@ class ContactRows:
         self.slop = s.linear_slop
         self.colors = _color_rows(self.ka, self.kb, self.dyn_a, self.dyn_b, state.num_worlds * N)
         self._free_colors = None
+        self._blocks = {}  # id(rows) -> _Block of the colours (and free colours) of this step
 
     # ------------------------------------------------------------------------
-    def _gather(self, state, rows):
+    def _block(self, rows, cache=True):
+        """The ``_Block`` of ``rows``: cached for the step's colours."""
+        if not cache:
+            return _Block(self, rows)
+        block = self._blocks.get(id(rows))
+        if block is None:
+            block = self._blocks[id(rows)] = _Block(self, rows)
+        return block
+
+    def _gather(self, state, c):
         v = state.velocity.reshape(-1, 3)
         w = state.angular_velocity.reshape(-1, 3)
-        ka, kb = self.ka[rows], self.kb[rows]
-        return v[ka], w[ka], v[kb], w[kb]
+        return v[c.ka], w[c.ka], v[c.kb], w[c.kb]
 
-    def _scatter(self, state, rows, va, wa, vb, wb):
+    def _scatter(self, state, c, va, wa, vb, wb):
         v = state.velocity.reshape(-1, 3)
         w = state.angular_velocity.reshape(-1, 3)
-        ka, kb = self.ka[rows], self.kb[rows]
-        da, db = self.dyn_a[rows], self.dyn_b[rows]
-        v[ka[da]], w[ka[da]] = va[da], wa[da]
-        v[kb[db]], w[kb[db]] = vb[db], wb[db]
+        da, db = c.dyn_a, c.dyn_b
+        v[c.ka[da]], w[c.ka[da]] = va[da], wa[da]
+        v[c.kb[db]], w[c.kb[db]] = vb[db], wb[db]
 
-    def _apply(self, rows, j, P, va, wa, vb, wb):
-        """Impulse P (R, 3) at point j: -P on a, +P on b."""
-        ra, rb = self.ra[rows, j], self.rb[rows, j]
+    def _apply(self, c, j, P, va, wa, vb, wb):
+        """Impulse P (R, 3) at point j of the rows of block c: -P on a, +P on b."""
         if self.a_moves:
-            va = va - P * self.inv_ma[rows][:, None]
-            wa = wa - mat_vec(self.ia[rows, 0], cross(ra, P))
-        vb = vb + P * self.inv_mb[rows][:, None]
-        wb = wb + mat_vec(self.ib[rows, 0], cross(rb, P))
+            va = va - P * c.inv_ma
+            wa = wa - mat_vec(c.ia, cross(c.ra[:, j], P))
+        vb = vb + P * c.inv_mb
+        wb = wb + mat_vec(c.ib, cross(c.rb[:, j], P))
         return va, wa, vb, wb
 
     def warm_start(self, model, state):
@@ -204,10 +231,12 @@ class ContactRows:
         if not lam.any():
             return
         for rows in self.colors:
-            va, wa, vb, wb = self._gather(state, rows)
+            c = self._block(rows)
+            va, wa, vb, wb = self._gather(state, c)
+            lam_c = lam[rows]
             for j in range(self.valid.shape[1]):
-                va, wa, vb, wb = self._apply(rows, j, lam[rows, j], va, wa, vb, wb)
-            self._scatter(state, rows, va, wa, vb, wb)
+                va, wa, vb, wb = self._apply(c, j, lam_c[:, j], va, wa, vb, wb)
+            self._scatter(state, c, va, wa, vb, wb)
 
     def _separation(self, state, rows):
         """Current separation (R, 4) from the bodies' displacement this step."""
@@ -237,15 +266,15 @@ class ContactRows:
         """One sweep over ``colors`` (default: every row), in colour order."""
         soft = self.soft
         for rows in self.colors if colors is None else colors:
-            va, wa, vb, wb = self._gather(state, rows)
-            n = self.n[rows]
-            t1, t2 = self.t1[rows], self.t2[rows]
+            c = self._block(rows)
+            va, wa, vb, wb = self._gather(state, c)
+            n, t1, t2 = c.n, c.t1, c.t2
             sep = self._separation(state, rows)
-            valid = self.valid[rows]
+            valid = c.valid
             if self.bouncy:
                 # Closing speeds at the row's start, before its own points'
                 # impulses: a face landing flat records one speed at all four.
-                vn_row = [dot(vb + cross(wb, self.rb[rows, j]) - va - cross(wa, self.ra[rows, j]), n)
+                vn_row = [dot(vb + cross(wb, c.rb[:, j]) - va - cross(wa, c.ra[:, j]), n)
                           for j in range(valid.shape[1])]
             # Rows between two moving bodies take NORMAL_PASSES passes over their
             # normal points: one pass in the fixed order 0..3 leaves the earlier
@@ -254,14 +283,13 @@ class ContactRows:
             # defaults (at rest with 2 passes). Rows on a static body keep one
             # pass: a second one there changed the standing PD's falls under the
             # Balance pushes (feet on the ground) from 14 to 21 of 200 episodes.
-            paired = self.dyn_a[rows] & self.dyn_b[rows]
+            paired = c.paired
             passes = NORMAL_PASSES if paired.any() else 1
             for k in range(passes * valid.shape[1]):
                 j = k % valid.shape[1]
                 ok = valid[:, j] & (paired if k >= valid.shape[1] else True)
                 keep = valid[:, j] & ~ok  # rows sitting out a pass keep their impulse
-                ra, rb = self.ra[rows, j], self.rb[rows, j]
-                vrel = vb + cross(wb, rb) - va - cross(wa, ra)
+                vrel = vb + cross(wb, c.rb[:, j]) - va - cross(wa, c.ra[:, j])
                 vn = dot(vrel, n)
                 s = sep[:, j]
                 if use_bias and not self.thesis:
@@ -273,7 +301,7 @@ class ContactRows:
                     bias = np.where(s > 0, s / h, 0.0)
                     ms, isc = 1.0, 0.0
                 lam = self.lam_n[rows, j]
-                d = -self.mn[rows, j] * ms * (vn + bias) - isc * lam
+                d = -c.mn[:, j] * ms * (vn + bias) - isc * lam
                 new = np.where(ok, np.maximum(lam + d, 0.0), np.where(keep, lam, 0.0))
                 d = new - lam
                 # Closing speed for restitution: the normal velocity just
@@ -284,21 +312,20 @@ class ContactRows:
                 self.s_close[rows, j] = np.where(first, s, self.s_close[rows, j])
                 self.lam_n[rows, j] = new
                 self.max_lam_n[rows, j] = np.maximum(self.max_lam_n[rows, j], new)
-                va, wa, vb, wb = self._apply(rows, j, d[:, None] * n, va, wa, vb, wb)
+                va, wa, vb, wb = self._apply(c, j, d[:, None] * n, va, wa, vb, wb)
             for j in range(valid.shape[1]):
                 ok = valid[:, j]
-                ra, rb = self.ra[rows, j], self.rb[rows, j]
-                vrel = vb + cross(wb, rb) - va - cross(wa, ra)
+                vrel = vb + cross(wb, c.rb[:, j]) - va - cross(wa, c.ra[:, j])
                 l1, l2 = self.lam_t1[rows, j], self.lam_t2[rows, j]
-                n1 = l1 - self.mt1[rows, j] * dot(vrel, t1)
-                n2 = l2 - self.mt2[rows, j] * dot(vrel, t2)
-                scale = _coulomb_scale(n1, n2, self.mu[rows, j] * self.lam_n[rows, j])
+                n1 = l1 - c.mt1[:, j] * dot(vrel, t1)
+                n2 = l2 - c.mt2[:, j] * dot(vrel, t2)
+                scale = _coulomb_scale(n1, n2, c.mu[:, j] * self.lam_n[rows, j])
                 n1 = np.where(ok, n1 * scale, 0.0)
                 n2 = np.where(ok, n2 * scale, 0.0)
                 self.lam_t1[rows, j], self.lam_t2[rows, j] = n1, n2
                 P = (n1 - l1)[:, None] * t1 + (n2 - l2)[:, None] * t2
-                va, wa, vb, wb = self._apply(rows, j, P, va, wa, vb, wb)
-            self._scatter(state, rows, va, wa, vb, wb)
+                va, wa, vb, wb = self._apply(c, j, P, va, wa, vb, wb)
+            self._scatter(state, c, va, wa, vb, wb)
 
     def restitution(self, model, state):
         """Bounce once per step: sequential impacts from the closing speeds."""
@@ -332,19 +359,19 @@ class ContactRows:
         for rows in self.colors:
             if not bounce[rows].any():
                 continue
-            va, wa, vb, wb = self._gather(state, rows)
-            n = self.n[rows]
+            c = self._block(rows)
+            va, wa, vb, wb = self._gather(state, c)
+            n = c.n
             for j in range(self.valid.shape[1]):
                 ok = bounce[rows, j]
-                ra, rb = self.ra[rows, j], self.rb[rows, j]
-                vn = dot(vb + cross(wb, rb) - va - cross(wa, ra), n)
+                vn = dot(vb + cross(wb, c.rb[:, j]) - va - cross(wa, c.ra[:, j]), n)
                 lam = self.lam_n[rows, j]
-                d = -self.mn[rows, j] * (vn - target[rows, j])
+                d = -c.mn[:, j] * (vn - target[rows, j])
                 new = np.where(ok, np.maximum(lam + d, 0.0), lam)
                 d = new - lam
                 self.lam_n[rows, j] = new
-                va, wa, vb, wb = self._apply(rows, j, d[:, None] * n, va, wa, vb, wb)
-            self._scatter(state, rows, va, wa, vb, wb)
+                va, wa, vb, wb = self._apply(c, j, d[:, None] * n, va, wa, vb, wb)
+            self._scatter(state, c, va, wa, vb, wb)
 
     def _impacts(self, state, seed_rows, loaded, bounce, first_target):
         """Free bodies: take the step's impulses of newly touching points back
@@ -396,23 +423,25 @@ class ContactRows:
             rows = rows[rows_on[rows]]
             if not rows.size:
                 continue
-            va, wa, vb, wb = self._gather(state, rows)
+            c = self._block(rows, cache=False)
+            va, wa, vb, wb = self._gather(state, c)
+            lam_c = lam[rows]
             for j in range(self.valid.shape[1]):
-                va, wa, vb, wb = self._apply(rows, j, lam[rows, j], va, wa, vb, wb)
-            self._scatter(state, rows, va, wa, vb, wb)
+                va, wa, vb, wb = self._apply(c, j, lam_c[:, j], va, wa, vb, wb)
+            self._scatter(state, c, va, wa, vb, wb)
 
     def _impact(self, state, rows, loaded, pending, first_target):
         """One impact on each row of ``rows`` with an approaching loaded point:
         targets v_n' = e·|v_n| (v_n at the impact's start; a point's first
         impact: from its closing speed), λ ≥ 0 per point. Returns whether any
         row had an impact."""
-        va, wa, vb, wb = self._gather(state, rows)
-        n = self.n[rows]
+        c = self._block(rows, cache=False)
+        va, wa, vb, wb = self._gather(state, c)
+        n = c.n
         P = self.valid.shape[1]
 
         def normal_speed(j):
-            ra, rb = self.ra[rows, j], self.rb[rows, j]
-            return dot(vb + cross(wb, rb) - va - cross(wa, ra), n)
+            return dot(vb + cross(wb, c.rb[:, j]) - va - cross(wa, c.ra[:, j]), n)
 
         vn = np.stack([normal_speed(j) for j in range(P)], axis=1)
         approach = loaded & (vn < -IMPACT_TOLERANCE)
@@ -428,7 +457,7 @@ class ContactRows:
         target = np.maximum(target, 0.0)
         # Normal rows to the targets, then Coulomb friction bounded by μ times
         # the impact's normal impulse, the row's points in sequence.
-        t1, t2 = self.t1[rows], self.t2[rows]
+        t1, t2 = c.t1, c.t2
         lam, l1, l2 = np.zeros(vn.shape), np.zeros(vn.shape), np.zeros(vn.shape)
         # Each row passes until its own impulses settle (a row's result must not
         # depend on the other worlds' rows).
@@ -436,28 +465,27 @@ class ContactRows:
             live = ~done
             change = 0.0
             for j in range(P):
-                d = -self.mn[rows, j] * (normal_speed(j) - target[:, j])
+                d = -c.mn[:, j] * (normal_speed(j) - target[:, j])
                 new = np.where(on[:, j] & live, np.maximum(lam[:, j] + d, 0.0), lam[:, j])
                 d = new - lam[:, j]
                 change = np.maximum(change, np.abs(d))
                 lam[:, j] = new
-                va, wa, vb, wb = self._apply(rows, j, d[:, None] * n, va, wa, vb, wb)
+                va, wa, vb, wb = self._apply(c, j, d[:, None] * n, va, wa, vb, wb)
             for j in range(P):
-                ra, rb = self.ra[rows, j], self.rb[rows, j]
-                vrel = vb + cross(wb, rb) - va - cross(wa, ra)
-                n1 = l1[:, j] - self.mt1[rows, j] * dot(vrel, t1)
-                n2 = l2[:, j] - self.mt2[rows, j] * dot(vrel, t2)
-                scale = _coulomb_scale(n1, n2, self.mu[rows, j] * lam[:, j])
+                vrel = vb + cross(wb, c.rb[:, j]) - va - cross(wa, c.ra[:, j])
+                n1 = l1[:, j] - c.mt1[:, j] * dot(vrel, t1)
+                n2 = l2[:, j] - c.mt2[:, j] * dot(vrel, t2)
+                scale = _coulomb_scale(n1, n2, c.mu[:, j] * lam[:, j])
                 n1 = np.where(live, n1 * scale, l1[:, j])
                 n2 = np.where(live, n2 * scale, l2[:, j])
                 change = np.maximum(change, np.maximum(np.abs(n1 - l1[:, j]), np.abs(n2 - l2[:, j])))
                 P_t = (n1 - l1[:, j])[:, None] * t1 + (n2 - l2[:, j])[:, None] * t2
                 l1[:, j], l2[:, j] = n1, n2
-                va, wa, vb, wb = self._apply(rows, j, P_t, va, wa, vb, wb)
+                va, wa, vb, wb = self._apply(c, j, P_t, va, wa, vb, wb)
             done = done | (change <= IMPACT_PASS_TOLERANCE * lam.max(axis=1))
             if done.all():
                 break
-        self._scatter(state, rows, va, wa, vb, wb)
+        self._scatter(state, c, va, wa, vb, wb)
         pending[rows] &= ~event[:, None]
         return True
 
