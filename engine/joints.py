@@ -238,6 +238,7 @@ class JointSet:
         self._frames_on = False  # frames of _frames_state cached between begin_step and end_step
         self._frames = self._frames_state = None
         self._limits = self._swing_twist = None  # of every joint, cached with the frames
+        self._gs_rows = None  # _gs_limit_rows, cached with the frames
 
     # ------------------------------------------------------------------ state
     def initial_arrays(self, W):
@@ -273,7 +274,7 @@ class JointSet:
         before, has a component along the new axis, 7x amplified; 250 rad/s
         in 4 s and +40 J in 5 s for a ball on a chain pinned at both ends,
         benchmarks.stability chain_loop with rigid joints)."""
-        self._frames = self._limits = self._swing_twist = None
+        self._frames = self._limits = self._swing_twist = self._gs_rows = None
         if self.tree is not None:
             self.tree._factored = None
         if state is not None:
@@ -406,7 +407,7 @@ class JointSet:
         and each tree joint's softness; ``touching`` (W, num_bodies) bool marks
         the bodies with contact rows this step (None: no contacts)."""
         self._frames_on, self._frames, self._frames_state = True, None, state
-        self._limits = self._swing_twist = None
+        self._limits = self._swing_twist = self._gs_rows = None
         if self.tree is not None:
             self.tree._factored = None
         self._set_inertia(model, state)
@@ -587,27 +588,38 @@ class JointSet:
             whole = color["gs_slice"]
             if whole.start == whole.stop:
                 continue
-            # The inverse inertias of the colour's limited joints, gathered once
-            # for its twist and swing rows (both slices of this range).
+            # A colour's joints share no body: their bodies' angular velocities,
+            # impulses and inverse inertias are gathered once for its twist and
+            # swing rows (each a slice of this range) and written back once.
             idx = self.gs_limit[whole]
-            ia_all, ib_all = self._iinv[:, self.parent[idx]], self._iinv[:, self.child[idx]]
-            pos, idx = color["twist_slice"], color["twist_limit"]
-            if idx.size:
-                a, b = self.parent[idx], self.child[idx]
-                inv = (ia_all[:, pos.start - whole.start:pos.stop - whole.start],
-                       ib_all[:, pos.start - whole.start:pos.stop - whole.start])
-                Jt, ac = rows["Jt"][:, pos], act[:, pos]
-                self._one_sided(state, a, b, inv, Jt, [x[:, pos] for x in lo], ac, 0, idx)
-                self._one_sided(state, a, b, inv, -Jt, [x[:, pos] for x in hi], ac, 1, idx)
-            pos, idx = color["swing_slice"], color["swing_limit"]
-            if idx.size:
-                inv = (ia_all[:, pos.start - whole.start:], ib_all[:, pos.start - whole.start:])
-                self._one_sided(state, self.parent[idx], self.child[idx], inv, rows["Js"][:, pos],
-                                [x[:, pos] for x in sw], act[:, pos], 2, idx)
+            a, b = self.parent[idx], self.child[idx]
+            wa, wb = state.angular_velocity[:, a], state.angular_velocity[:, b]
+            ia, ib = self._iinv[:, a], self._iinv[:, b]
+            lam = state.joint_limit_impulse[:, idx]
+            for slot, pos, axis, terms, sign in ((0, color["twist_slice"], rows["Jt"], lo, 1.0),
+                                                 (1, color["twist_slice"], rows["Jt"], hi, -1.0),
+                                                 (2, color["swing_slice"], rows["Js"], sw, 1.0)):
+                if pos.start == pos.stop:
+                    continue
+                k = slice(pos.start - whole.start, pos.stop - whole.start)
+                ax = axis[:, pos] if sign > 0 else -axis[:, pos]
+                self._one_sided(wa[:, k], wb[:, k], ia[:, k], ib[:, k], ax, [x[:, pos] for x in terms],
+                                act[:, pos], lam[:, k, slot])
+            state.angular_velocity[:, a] = wa
+            state.angular_velocity[:, b] = wb
+            state.joint_limit_impulse[:, idx] = lam
 
     def _gs_limit_rows(self, state):
         """Axes, errors (C >= 0 allowed) and effective masses of every
-        Gauss-Seidel limit row, at the solve's positions."""
+        Gauss-Seidel limit row, at the solve's positions (within a step
+        computed once per set of positions)."""
+        if self._frames_on and state is self._frames_state:
+            if self._gs_rows is None:
+                self._gs_rows = self._compute_gs_limit_rows(state)
+            return self._gs_rows
+        return self._compute_gs_limit_rows(state)
+
+    def _compute_gs_limit_rows(self, state):
         idx = self.gs_limit
         a, b = self.parent[idx], self.child[idx]
         Jt, twist, Js, C_swing = self.limit_geometry(state, idx)
@@ -723,25 +735,25 @@ class JointSet:
         gain = -m * np.where(open_, 1.0, mass_scale)
         return gain, bias, np.where(open_, 0.0, impulse_scale)
 
-    def _one_sided(self, state, a, b, inv, axis, terms, act, slot, idx):
-        """One-sided angular row about ``axis``: Δλ = gain (Ċ + bias) - isc λ with
-        the accumulated λ >= 0 (``terms`` = gain, bias, isc of ``_one_sided_terms``;
-        ``inv``: the world inverse inertias of bodies a and b)."""
+    def _one_sided(self, wa, wb, ia, ib, axis, terms, act, lam):
+        """One-sided angular rows about ``axis`` on the angular velocities
+        ``wa``, ``wb`` of their bodies (updated in place, like the accumulated
+        impulses ``lam``): Δλ = gain (Ċ + bias) - isc λ with λ >= 0 (``terms``
+        = gain, bias, isc of ``_one_sided_terms``; ``ia``, ``ib``: the bodies'
+        world inverse inertias)."""
         gain, bias, isc = terms
-        ia, ib = inv
-        cdot = dot(state.angular_velocity[:, b] - state.angular_velocity[:, a], axis)
-        lam = state.joint_limit_impulse[:, idx, slot]
+        cdot = dot(wb - wa, axis)
         d = gain * (cdot + bias) - isc * lam
         new = np.maximum(lam + d, 0.0) * act
         d = new - lam
-        state.joint_limit_impulse[:, idx, slot] = new
+        lam[...] = new
         L = d[..., None] * axis
-        state.angular_velocity[:, a] -= mat_vec(ia, L)
-        state.angular_velocity[:, b] += mat_vec(ib, L)
+        wa -= mat_vec(ia, L)
+        wb += mat_vec(ib, L)
 
     def end_step(self, model, state, h, events):
         self._frames_on, self._frames, self._frames_state = False, None, None
-        self._limits = self._swing_twist = None
+        self._limits = self._swing_twist = self._gs_rows = None
         if self.settings.solver == "thesis":
             self._project_positions(model, state)
         elif self.tree is not None and self.settings.joint_projection_passes:
