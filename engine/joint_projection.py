@@ -115,7 +115,7 @@ def _project(js, tree, state, keep, slop, metric, passes):
             d = np.matmul(M_inv, tree._body_impulses(Ja, Jb, mu)[..., None])[..., 0]
         else:
             # Loop-closing joints (solved exactly with the tree): the coupled solve in the same metric.
-            mu, mu_l = tree.solve_coupled(rows, lrows, loops, lambda v, w: np.matmul(M_inv[w], v), M)
+            mu, mu_l = tree.solve_coupled(rows, lrows, loops, lambda v, w: np.matmul(M_inv[w], v), M, M_inv_tree)
             imp = tree._body_impulses(Ja, Jb, -mu) + tree._body_impulses(lrows[2], lrows[3], -mu_l, loops)
             d = np.matmul(M_inv, imp[..., None])[..., 0]
         # At most MAX_TURN rad for any body per pass, the whole world's step scaled alike.

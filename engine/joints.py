@@ -754,6 +754,8 @@ class JointSet:
     def end_step(self, model, state, h, events):
         self._frames_on, self._frames, self._frames_state = False, None, None
         self._limits = self._swing_twist = self._gs_rows = None
+        if self.tree is not None:
+            self.tree._factored = None  # nothing outside a step reads the factors
         if self.settings.solver == "thesis":
             self._project_positions(model, state)
         elif self.tree is not None and self.settings.joint_projection_passes:
@@ -1324,12 +1326,13 @@ class _TreeSolver(_Rows):
         _scatter_add(out, rows.split_b, _mtm(JB, x))
         return out
 
-    def solve_coupled(self, tree_rows, loop_rows, rows, inv_metric_times, M=None):
+    def solve_coupled(self, tree_rows, loop_rows, rows, inv_metric_times, M=None, M_inv=None):
         """x = K⁻¹ r over the tree rows T and the loop rows L together, K = J W⁻¹ Jᵀ
         (W: the bodies' metric, the mass matrices or ``M`` with
-        ``inv_metric_times(v)`` = W⁻¹ v on (W, N, 6, k) blocks). The tree
-        factorisation gives X = K_TT⁻¹ K_TL column by column and y = K_TT⁻¹ r_T;
-        the loop rows solve the dense Schur complement
+        ``inv_metric_times(v)`` = W⁻¹ v on (W, N, 6, k) blocks; ``M_inv``:
+        the inverse of ``M`` on the tree bodies, if known, for the leaf
+        pivots). The tree factorisation gives X = K_TT⁻¹ K_TL column by column
+        and y = K_TT⁻¹ r_T; the loop rows solve the dense Schur complement
 
             (K_LL - K_LT X) x_L = r_L - K_LT y,     x_T = y - X x_L
 
@@ -1350,16 +1353,18 @@ class _TreeSolver(_Rows):
         per_world = 8 * 6 * rows.used_rows.size * (3 * self.num_bodies + 6 * tree_rows[5].shape[1] + 4 * nl)
         chunk = max(1, LOOP_SOLVE_BYTES // max(per_world, 1))
         if W <= chunk:
-            return self._solve_coupled(tree_rows, loop_rows, rows, inv_metric_times, M, slice(None))
-        parts = [self._solve_coupled(tree_rows, loop_rows, rows, inv_metric_times, M, slice(w, min(w + chunk, W)))
+            return self._solve_coupled(tree_rows, loop_rows, rows, inv_metric_times, M, M_inv, slice(None))
+        parts = [self._solve_coupled(tree_rows, loop_rows, rows, inv_metric_times, M, M_inv, slice(w, min(w + chunk, W)))
                  for w in range(0, W, chunk)]
         return np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts])
 
-    def _solve_coupled(self, tree_rows, loop_rows, rows, inv_metric_times, M, worlds):
+    def _solve_coupled(self, tree_rows, loop_rows, rows, inv_metric_times, M, M_inv, worlds):
         """``solve_coupled`` for the worlds of the slice ``worlds``."""
         a, b, Ja, Jb, mask, r = (x if i < 2 else x[worlds] for i, x in enumerate(tree_rows))
         la, lb, La, Lb, lmask, lr = (x if i < 2 else x[worlds] for i, x in enumerate(loop_rows))
-        factors = self._factor(Ja, Jb, mask, (self.M if M is None else M)[worlds])
+        if M is None:
+            M, M_inv = self.M, self.M_inv
+        factors = self._factor(Ja, Jb, mask, M[worlds], M_inv=None if M_inv is None else M_inv[worlds])
         W, nl = lr.shape[:2]
 
         def rows_of(JA, JB, ia, ib, v):
@@ -1430,7 +1435,9 @@ class _TreeSolver(_Rows):
         angular rows 3-5 are empty, as ``blocks`` builds them) is
         blockdiag(D_j[:3, :3], -I), one 3x3 inverse by the adjugate (10 times
         faster than LAPACK's from a thousand matrices, 4 times slower for one,
-        about 12 µs more a call). Returns D⁻¹ and
+        about 12 µs more a call; it reads the upper triangle of a block
+        symmetric to rounding, and the block is negative definite, never
+        singular: -I for a broken joint). Returns D⁻¹ and
         L = D⁻¹ H_parent of each group."""
         nb = self.t.n_bodies
         cb = self.child_is_b[:, None, None]
