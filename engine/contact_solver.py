@@ -99,7 +99,7 @@ class _Block:
     and pass in the sweeps."""
 
     def __init__(self, cr, rows):
-        self.rows = rows
+        self.rows = rows  # held, so that id(rows), the cache key, is not reused within the step
         self.ra, self.rb = cr.ra[rows], cr.rb[rows]
         self.ia, self.ib = cr.ia[rows, 0], cr.ib[rows, 0]
         self.inv_ma, self.inv_mb = cr.inv_ma[rows][:, None], cr.inv_mb[rows][:, None]

@@ -274,13 +274,20 @@ class JointSet:
         before, has a component along the new axis, 7x amplified; 250 rad/s
         in 4 s and +40 J in 5 s for a ball on a chain pinned at both ends,
         benchmarks.stability chain_loop with rigid joints)."""
-        self._frames = self._limits = self._swing_twist = self._gs_rows = None
-        if self.tree is not None:
-            self.tree._factored = None
+        self._frames = None
+        self._drop_position_caches()
         if state is not None:
             self._set_inertia(model, state)
             if self.tree is not None and self.settings.solver != "thesis":
                 self.tree.begin_step(self, model, state, self._h)
+
+    def _drop_position_caches(self):
+        """Forget what was computed from the last set of positions and
+        inertias (limit geometry, swing-twist, limit rows, the tree's
+        factors): at the start and end of a step and when the bodies move."""
+        self._limits = self._swing_twist = self._gs_rows = None
+        if self.tree is not None:
+            self.tree._factored = None
 
     def limit_geometry(self, state, idx):
         """``_limit_rows`` of joints ``idx``; within a step computed once for
@@ -407,9 +414,7 @@ class JointSet:
         and each tree joint's softness; ``touching`` (W, num_bodies) bool marks
         the bodies with contact rows this step (None: no contacts)."""
         self._frames_on, self._frames, self._frames_state = True, None, state
-        self._limits = self._swing_twist = self._gs_rows = None
-        if self.tree is not None:
-            self.tree._factored = None
+        self._drop_position_caches()
         self._set_inertia(model, state)
         s = self.settings
         # Tree joints are stiffer than Gauss-Seidel rows: the tree solve is
@@ -753,9 +758,7 @@ class JointSet:
 
     def end_step(self, model, state, h, events):
         self._frames_on, self._frames, self._frames_state = False, None, None
-        self._limits = self._swing_twist = self._gs_rows = None
-        if self.tree is not None:
-            self.tree._factored = None  # nothing outside a step reads the factors
+        self._drop_position_caches()
         if self.settings.solver == "thesis":
             self._project_positions(model, state)
         elif self.tree is not None and self.settings.joint_projection_passes:
@@ -996,7 +999,22 @@ class _Group:
         self.jids = ids - nb  # joint groups: tree joint index
         self.simple = np.flatnonzero(simple)
         self.full = np.flatnonzero(~simple)
-        self.all_simple, self.all_full = not self.full.size, not self.simple.size
+        # Node indices of each part: tree bodies (body groups) or tree joints.
+        nodes = self.ids if self.body else self.jids
+        self.simple_nodes, self.full_nodes = nodes[self.simple], nodes[self.full]
+
+    def pivots(self, use_simple, simple, full):
+        """D⁻¹ (W, n, 6, 6) of the group: ``simple(nodes)`` for its
+        closed-form pivots when ``use_simple``, ``full(nodes)`` for the rest."""
+        if not use_simple or not self.simple.size:
+            return full(self.ids if self.body else self.jids)
+        if not self.full.size:
+            return simple(self.simple_nodes)
+        part = simple(self.simple_nodes)
+        Di = np.empty((part.shape[0], self.ids.size, 6, 6))
+        Di[:, self.simple] = part
+        Di[:, self.full] = full(self.full_nodes)
+        return Di
 
 
 class _Rows:
@@ -1450,34 +1468,16 @@ class _TreeSolver(_Rows):
         Dinv, L = [], []
         for g in self.groups:
             if g.body:
-                if leaf_inv is None or g.all_full:
-                    Di = _inv_definite(metric[:, g.ids] - acc_b[:, g.ids])
-                elif g.all_simple:
-                    Di = leaf_inv[:, g.ids]
-                else:
-                    Di = np.empty((W, g.ids.size, 6, 6))
-                    Di[:, g.simple] = leaf_inv[:, g.ids[g.simple]]
-                    inner = g.ids[g.full]
-                    Di[:, g.full] = _inv_definite(metric[:, inner] - acc_b[:, inner])
+                Di = g.pivots(leaf_inv is not None,
+                              lambda ids: leaf_inv[:, ids],
+                              lambda ids: _inv_definite(metric[:, ids] - acc_b[:, ids]))
                 if g.has_parent:
                     Jg = Jc[:, g.pj]
                     Lg = _mm(Di, np.swapaxes(Jg, -1, -2))
                     acc_j[:, g.pj] = _mm(Jg, Lg)
             else:
-                if not ball_rows or g.all_full:
-                    Di = _inv_definite(self._joint_pivot(acc_j[:, g.jids], mask[:, g.jids]))
-                else:
-                    balls = g.jids[g.simple]
-                    Di_ball = np.zeros((W, balls.size, 6, 6))
-                    Di_ball[..., :3, :3] = sym3_inverse(self._joint_pivot(acc_j[:, balls, :3, :3], mask[:, balls, :3]))
-                    Di_ball[..., 3 + _DIAG3, 3 + _DIAG3] = -1.0
-                    if g.all_simple:
-                        Di = Di_ball
-                    else:
-                        others = g.jids[g.full]
-                        Di = np.empty((W, g.ids.size, 6, 6))
-                        Di[:, g.simple] = Di_ball
-                        Di[:, g.full] = _inv_definite(self._joint_pivot(acc_j[:, others], mask[:, others]))
+                Di = g.pivots(ball_rows, lambda j: self._ball_pivot_inverse(acc_j[:, j], mask[:, j]),
+                              lambda j: _inv_definite(self._joint_pivot(acc_j[:, j], mask[:, j])))
                 if g.has_parent:
                     Jg = Jp[:, g.jids]
                     Lg = _mm(Di, Jg)
@@ -1485,6 +1485,14 @@ class _TreeSolver(_Rows):
             Dinv.append(Di)
             L.append(Lg if g.has_parent else None)
         return Dinv, L
+
+    @classmethod
+    def _ball_pivot_inverse(cls, acc, mask):
+        """D_j⁻¹ = blockdiag(D_j[:3, :3]⁻¹, -I) of ball joints (angular rows empty)."""
+        Di = np.zeros(acc.shape)
+        Di[..., :3, :3] = sym3_inverse(cls._joint_pivot(acc[..., :3, :3], mask[..., :3]))
+        Di[..., 3 + _DIAG3, 3 + _DIAG3] = -1.0
+        return Di
 
     @staticmethod
     def _joint_pivot(acc, mask):
