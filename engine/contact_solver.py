@@ -35,8 +35,8 @@ centres (fixed for the step) and relative velocity v_rel = (v_b + ω_b × r_b)
   height at 60 Hz), taken at the start of the row's sweep so all points of a
   face share it.
 
-Rows are swept colour by colour (no (world, body) twice in a colour), the 4
-points of a row in sequence: the normal points (twice, ``NORMAL_PASSES``, in a
+Rows are swept colour by colour (no (world, body) twice in a colour; the
+colouring: ``Settings.contact_coloring``), the 4 points of a row in sequence: the normal points (twice, ``NORMAL_PASSES``, in a
 row between two moving bodies), then the friction points once.
 """
 
@@ -44,6 +44,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .coloring import color_rows
 from .math3d import cross, dot, mat_vec, normalize, quat_rotate, quat_rotate_inv, world_inv_inertia
 from .soft import make_soft
 
@@ -69,26 +70,15 @@ def _tangents(n):
     return t1, cross(n, t1)
 
 
-def _color_rows(ka, kb, dyn_a, dyn_b, num_keys):
-    """Colour rows in vectorised rounds: in each round every (world, body) key
-    admits the lowest-numbered uncoloured row touching it; rows admitted by
-    both of their dynamic bodies take the round's colour."""
-    K = ka.size
-    color = np.full(K, -1, dtype=np.int64)
-    rem = np.arange(K)
-    c = 0
-    while rem.size:
-        claim = np.full(num_keys, K, dtype=np.int64)
-        da, db = dyn_a[rem], dyn_b[rem]
-        np.minimum.at(claim, ka[rem][da], rem[da])
-        np.minimum.at(claim, kb[rem][db], rem[db])
-        ok = (~da | (claim[ka[rem]] == rem)) & (~db | (claim[kb[rem]] == rem))
-        color[rem[ok]] = c
-        rem = rem[~ok]
-        c += 1
-    order = np.argsort(color, kind="stable")
-    bounds = np.searchsorted(color[order], np.arange(c + 1))
-    return [order[bounds[i]:bounds[i + 1]] for i in range(c)]
+def _top_down_priority(point, valid, gravity):
+    """Rows ranked by the mean height of their valid points against gravity,
+    highest first (ties and no gravity: row order). Swept top down, a pile's
+    weight reaches the rows under it within the sweep: with first-fit
+    colours bottom up, a 100 kg box on a 1 kg box still moved at up to
+    6.5 cm/s after 1 s (top down: 0.4 cm/s)."""
+    mean = np.where(valid[..., None], point, 0.0).sum(axis=1) / np.maximum(valid.sum(axis=1), 1)[:, None]
+    height = -(mean @ gravity)
+    return np.argsort(np.argsort(-height, kind="stable"), kind="stable")
 
 
 class _Block:
@@ -185,7 +175,11 @@ class ContactRows:
         self.thesis = s.solver == "thesis"
         self.max_push_out = s.max_push_out
         self.slop = s.linear_slop
-        self.colors = _color_rows(self.ka, self.kb, self.dyn_a, self.dyn_b, state.num_worlds * N)
+        if s.contact_coloring == "greedy":
+            priority, first_fit = _top_down_priority(point, valid, g), True
+        else:
+            priority, first_fit = np.arange(w.size), False
+        self.colors = color_rows(self.ka, self.kb, self.dyn_a, self.dyn_b, state.num_worlds * N, priority, first_fit)
         self._free_colors = None
         self._blocks = {}  # id(rows) -> _Block of the colours (and free colours) of this step
 

@@ -251,6 +251,7 @@ def test_empty_scene():
     (dict(joint_projection_slop=-0.001), "joint_projection_slop must be a finite number >= 0"),
     (dict(joint_projection_contact_weight=math.inf), "joint_projection_contact_weight must be a finite number >= 0"),
     (dict(integrator="leapfrog"), "unknown integrator 'leapfrog'"),
+    (dict(contact_coloring="random"), "unknown contact_coloring 'random'"),
 ])
 def test_bad_settings(scene, changes, fragment):
     model, _ = scene
