@@ -36,7 +36,6 @@ def color_pairs(body_a, body_b, dynamic) -> list[np.ndarray]:
     return [np.array(c, dtype=np.int64) for c in colors]
 
 
-
 def color_rows(key_a, key_b, dyn_a, dyn_b, num_keys, priority, first_fit=False) -> list[np.ndarray]:
     """Vectorised colouring of rows (contact manifolds) by their keys.
 
@@ -53,7 +52,8 @@ def color_rows(key_a, key_b, dyn_a, dyn_b, num_keys, priority, first_fit=False) 
     * ``first_fit=False``: each round is a colour. Sweeping the colours in
       order is then the same as sweeping the rows one after another in
       priority order (a Gauss-Seidel sweep in that order, parallel only where
-      rows are independent): a stack of n boxes takes n - 1 colours.
+      rows are independent): a chain of n rows, each sharing a body with
+      the next, takes n colours.
     * ``first_fit=True``: each row of a round takes the lowest colour not yet
       used at its keys: at most Δ + 1 colours (Δ: the most rows a row shares
       a body with) whatever the order, as in Box2D v3's greedy graph
@@ -63,7 +63,8 @@ def color_rows(key_a, key_b, dyn_a, dyn_b, num_keys, priority, first_fit=False) 
     if K == 0:
         return []
     color = np.full(K, -1, dtype=np.int64)
-    used = np.zeros((num_keys, 8), dtype=bool)  # first fit: used[key, c], colour c has a row at key
+    if first_fit:
+        used = np.zeros((num_keys, 8), dtype=bool)  # used[key, c]: colour c has a row at key
     rounds = 0
     rem = np.arange(K)
     unclaimed = np.iinfo(np.int64).max

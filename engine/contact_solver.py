@@ -36,8 +36,9 @@ centres (fixed for the step) and relative velocity v_rel = (v_b + ω_b × r_b)
   face share it.
 
 Rows are swept colour by colour (no (world, body) twice in a colour; the
-colouring: ``Settings.contact_coloring``), the 4 points of a row in sequence: the normal points (twice, ``NORMAL_PASSES``, in a
-row between two moving bodies), then the friction points once.
+colouring: ``Settings.contact_coloring``), the 4 points of a row in
+sequence: the normal points (twice, ``NORMAL_PASSES``, in a row between two
+moving bodies), then the friction points once.
 """
 
 from __future__ import annotations

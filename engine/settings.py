@@ -231,7 +231,6 @@ class Settings:
     joint_geometric_stiffness_cap: float = 1.0
     joint_limits_in_tree: bool = False
     joint_loops: str = "exact"
-    contact_coloring: str = "ordered"
     joint_active_set_passes: int = 3
     joint_hertz: float = 60.0
     joint_damping_ratio: float = 2.0
@@ -244,6 +243,7 @@ class Settings:
     joint_projection_slop: float = 0.04
     joint_projection_contact_weight: float = 1000.0
     limit_hertz: float = math.inf
+    contact_coloring: str = "ordered"
     contact_hertz: float = 60.0
     contact_damping_ratio: float = 10.0
     joint_max_push_out: float = 3.0
