@@ -21,7 +21,13 @@ went 13 cm into the ground (24 mm without projection); with it the ground
 holds the foot and the leg moves instead (14 mm).
 
 Each pass turns no body by more than ``MAX_TURN``, and a pass that leaves a
-world's error larger is taken back and ends that world's projection.
+world's error larger is taken back and ends that world's projection. A world
+stops once its error beyond the slop is within ``TOLERANCE`` of the slop: the
+passes converge linearly, about 50-70 times per pass under random maximum
+torques (8.1e-2, 4.6e-3, 6.6e-5, 8.6e-7 m beyond the 4 cm slop), so
+at the default slop two passes usually leave under 0.4 mm, where the four
+passes that always ran before went on to 1e-8 m for 40% more of the
+projection's time.
 
 Only errors beyond ``joint_projection_slop`` are projected, back to the slop:
 a soft joint carries its static load by its stretch, and taking that stretch
@@ -50,6 +56,10 @@ ANGULAR_SLOP_LEVER = 0.25
 #: links by 3 rad and left the anchors 0.34 m apart; with this cap 4 cm, the
 #: slop. At 0.5 rad the 100 m/s ragdoll's first step could not close 0.5 m.
 MAX_TURN = 1.0
+#: A world's passes stop once its error beyond the slop (the 2-norm over its
+#: joints, angular rows at ANGULAR_SLOP_LEVER) is at most this fraction of the
+#: slop; a joint must exceed the slop by more than it to start a projection.
+TOLERANCE = 0.01
 
 
 def project_joints(js, model, state):
@@ -61,7 +71,7 @@ def project_joints(js, model, state):
     if not keep.any():
         return
     slop = (s.joint_projection_slop, s.joint_projection_slop / ANGULAR_SLOP_LEVER)
-    need = _worlds_beyond_slop(js, tree, state, keep, slop)
+    need = _worlds_beyond_slop(js, tree, state, keep, tuple(x * (1.0 + TOLERANCE) for x in slop))
     if not need.any():
         return  # the usual step: no Jacobians built
     # Only the worlds beyond the slop are projected, on a copy of their
@@ -106,7 +116,7 @@ def _project(js, tree, state, keep, slop, metric, passes):
                 state.position[...] = np.where(w, before[1], state.position)
                 state.orientation[...] = np.where(w, before[2], state.orientation)
                 done |= worse
-        worlds = (err > 0.0) & ~done
+        worlds = (err > TOLERANCE * slop[0]) & ~done
         if k == passes or not worlds.any():
             return
         mask *= keep[:, None]
@@ -132,7 +142,8 @@ def _project(js, tree, state, keep, slop, metric, passes):
 
 def _worlds_beyond_slop(js, tree, state, keep, slop):
     """(W,) bool: worlds in which an active projected joint's anchor error
-    exceeds the linear slop or its lock rows' angular error the angular one. A
+    exceeds the linear bound ``slop[0]`` or its lock rows' angular error the
+    angular one ``slop[1]``. A
     hinge's error a_p × a_c is normal to a_p, so its two lock rows hold all of
     it; a fixed joint's rows are the whole vector; a ball joint has no lock rows."""
     need = np.zeros(state.num_worlds, dtype=bool)
