@@ -466,6 +466,34 @@ def ragdoll_impact(offset=(0, 0, 0), speed=100.0):
                 penetration_after=0.2, offset=o)
 
 
+#: (drop height of the soles, m; tilt, rad) of each world of ``ragdoll_drops``
+DROPS = ((0.5, 0.0), (1.0, 0.0), (1.5, 0.0), (1.0, 0.15), (1.2, -0.2), (0.8, 0.1))
+
+
+def ragdoll_drops(offset=(0, 0, 0)):
+    """The standing humanoid, limp (no motor torque needed), dropped from
+    0.5-1.5 m, upright or tilted about a horizontal axis, one drop per world:
+    does it land and come to rest?"""
+    o = np.asarray(offset, float)
+    b = _builder(o)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        add_humanoid(b, position=o)
+    model = b.build()
+    state = model.initial_state(len(DROPS))
+    dyn = model.dynamic
+    axis = np.array([1.0, 0.3, 0.0]) / np.hypot(1.0, 0.3)
+    for w, (height, tilt) in enumerate(DROPS):
+        q = np.broadcast_to(_q(axis, tilt), (int(dyn.sum()), 4))
+        p = state.position[w, dyn]
+        centre = p.mean(axis=0)
+        state.position[w, dyn] = centre + math3d.quat_rotate(q, p - centre) + (0.0, 0.0, height)
+        state.orientation[w, dyn] = math3d.quat_mul(q, state.orientation[w, dyn])
+    return Case("ragdoll_drops", f"the humanoid dropped {len(DROPS)} ways from 0.5-1.5 m, one per world", model,
+                state, duration=5.0, quick_duration=5.0, rest_time=3.0, rest_speed=0.05,
+                energy_tol=_energy_tol(75 * 9.81 * 2.5), anchor_bound=0.01, penetration_bound=0.05, offset=o)
+
+
 class RandomMaxTorque:
     """Every actuated axis at ± its maximum torque, signs redrawn every ``hold`` steps."""
 
@@ -616,6 +644,7 @@ SCENES = {
     "sphere_grid": sphere_grid,
     "chain_loop": chain_loop,
     "ragdoll_impact_100": ragdoll_impact,
+    "ragdoll_drops": ragdoll_drops,
     "ragdoll_max_torque": ragdoll_max_torque,
     "large_dt_ragdoll": large_dt_ragdoll,
     "large_dt_stack": large_dt_stack,

@@ -30,9 +30,11 @@ CONTACT_COLORINGS = ("ordered", "greedy")
 #: below; the defaults project only beyond 4 cm) the humanoid under random
 #: maximum torques on the ground keeps every anchor within 0.20 mm (without:
 #: 9.1 mm; 8 worlds x 200 steps) for 5% more time per step. A ragdoll dropped
-#: from 1 m still moves at up to 2.3 cm/s 3-5 s later (6.5 cm/s without the
-#: post-stabilisation; the defaults: under 1 cm/s): the Gauss-Seidel contacts
-#: fight the rigid joints, so the defaults stay soft.
+#: upright from 1 m still moves at up to 2.3 cm/s 3-5 s later (6.5 cm/s without
+#: the post-stabilisation; the defaults: under 1 cm/s), and over the six drops
+#: of ``benchmarks.stability`` ragdoll_drops at up to 0.42 m/s after 3 s (the
+#: defaults: 4.2 cm/s): the Gauss-Seidel contacts fight the rigid joints, so
+#: the defaults stay soft.
 ACCURATE = {"substeps": 16, "joint_hertz": math.inf, "joint_limits_in_tree": True, "joint_projection_slop": 0.0002}
 
 
@@ -151,7 +153,11 @@ class Settings:
         of each step (``engine.joint_projection``): at most this many exact
         Gauss-Newton passes move the positions, not the velocities, back onto
         the joints, in the worlds where an error exceeds the slop; 0 turns it
-        off. Default 4 passes with a 4 cm slop, a safety net for extremes:
+        off. A world's passes stop once its error beyond the slop is within
+        1% of the slop (``joint_projection.TOLERANCE``; two passes in most
+        projected steps under random maximum torques, where all four ran
+        before to 1e-8 m, for about 8% of that step). Default 4 passes with
+        a 4 cm slop, a safety net for extremes:
         the ragdoll hitting the ground at 100 m/s keeps its joints within
         4.2 cm (0.51 m without; penetration after impact 3.1 cm against
         0.9 cm), ragdolls dropped from 0.5-1.5 m open by 3.8-4.0 cm instead

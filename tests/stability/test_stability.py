@@ -140,10 +140,30 @@ def test_hard_case_fast(name):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name", [n for n in sc.case_names() if not n.startswith("ragdoll_max_torque")])
+@pytest.mark.parametrize("name", [n for n in sc.case_names()
+                                  if not n.startswith("ragdoll_max_torque") and n != "ragdoll_drops"])
 def test_hard_case_full(name):
     """The full scenes for their full durations (as ``python -m benchmarks.stability``)."""
     run_and_check(sc.make_case(name), quick=False, known_miss=SLOW_XFAIL.get(name))
+
+
+# ------------------------------------------------------------------ dropped ragdolls
+def test_ragdoll_drops_land_and_come_to_rest():
+    """Six drops from 0.5-1.5 m, upright and tilted, one per world, for the
+    case's full 5 s: finite, no energy gain, penetration under 5 cm and every
+    speed under 5 cm/s from 3 s on, asserted; the 1 cm anchor bound is a known
+    miss (the post-stabilisation's 4 cm slop). Measured at the defaults:
+    fastest 4.2 cm/s after 3 s, 3.2 cm deep, joints 4.0 cm; at ACCURATE
+    (``--settings``, see the README) joints 0.2 mm but 0.42 m/s after 3 s."""
+    case = sc.ragdoll_drops()
+    result = sc.run_case(case, quick=True)
+    assert not result.nan, result.error
+    misses = check(case, result)
+    assert not [m for m in misses if not m.startswith("anchor error")], misses
+    if misses:
+        pytest.xfail("measured: anchor error 4.0 cm > 1 cm (the joint post-stabilisation's slop); this run: "
+                     + "; ".join(misses))
+    pytest.fail("ragdoll_drops now meets its anchor bound: make this a plain assertion")
 
 
 # ------------------------------------------------------------------ random maximum torques
