@@ -122,7 +122,7 @@ SLOW_XFAIL = {
                 "2-3 s): the column buckles slowly (at 60 Hz a contact's rocking stiffness, about 4700 "
                 "N·m/rad, is below the about 5400 a column of 20 such boxes needs; 8 substeps at 120 Hz "
                 "hold it)",
-    "ragdoll_pile_10": "measured (quick run): anchor error 1.9 cm > 1 cm, penetration 5.2 cm > 5 cm",
+    "ragdoll_pile_10": "measured (quick run): anchor error 2.0 cm > 1 cm, penetration 5.5 cm > 5 cm",
     "sphere_grid": "measured (full run): anchor error 1.24 cm > 1 cm (10 km out 1.19 cm; 3.98 cm with "
                    "Gauss-Seidel loop rows, 4.9 mm in the fast test's 1 s)",
     "large_dt_ragdoll": "measured (quick run): anchor error 4.0 cm > 1 cm (the joint post-stabilisation's slop), "
@@ -180,7 +180,7 @@ def test_max_torque_quick_length():
     case = sc.ragdoll_max_torque()
     run_and_check(case, 2_000 * case.dt, known_miss="measured (benchmarks.stability --quick): anchor error "
                                                      "4.0 cm > 1 cm (the joint post-stabilisation's slop), "
-                                                     "penetration 16 cm > 5 cm within 2,000 steps")
+                                                     "penetration 11.5 cm > 5 cm within 2,000 steps")
 
 
 @pytest.mark.slow
@@ -196,7 +196,7 @@ def test_max_torque_100k_steps():
 def test_max_torque_far():
     case = sc.ragdoll_max_torque(FAR)
     run_and_check(case, 2_000 * case.dt, known_miss="measured 10 km out: anchor error 4.0 cm > 1 cm, "
-                                                     "penetration 14 cm > 5 cm in 2,000 steps")
+                                                     "penetration 9.7 cm > 5 cm in 2,000 steps")
 
 
 # ------------------------------------------------------------------ determinism
