@@ -466,6 +466,15 @@ def ragdoll_impact(offset=(0, 0, 0), speed=100.0):
                 penetration_after=0.2, offset=o)
 
 
+def _standing_humanoid(offset):
+    """The model of a scene with the ground and the humanoid standing on it at ``offset``."""
+    b = _builder(offset)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        add_humanoid(b, position=offset)
+    return b.build()
+
+
 #: (drop height of the soles, m; tilt, rad) of each world of ``ragdoll_drops``
 DROPS = ((0.5, 0.0), (1.0, 0.0), (1.5, 0.0), (1.0, 0.15), (1.2, -0.2), (0.8, 0.1))
 
@@ -475,11 +484,7 @@ def ragdoll_drops(offset=(0, 0, 0)):
     0.5-1.5 m, upright or tilted about a horizontal axis, one drop per world:
     does it land and come to rest?"""
     o = np.asarray(offset, float)
-    b = _builder(o)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        add_humanoid(b, position=o)
-    model = b.build()
+    model = _standing_humanoid(o)
     state = model.initial_state(len(DROPS))
     dyn = model.dynamic
     axis = np.array([1.0, 0.3, 0.0]) / np.hypot(1.0, 0.3)
@@ -512,11 +517,7 @@ class RandomMaxTorque:
 
 def ragdoll_max_torque(offset=(0, 0, 0), num_worlds=1, seed=0):
     o = np.asarray(offset, float)
-    b = _builder(o)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        add_humanoid(b, position=o)
-    model = b.build()
+    model = _standing_humanoid(o)
     case = Case("ragdoll_max_torque", "standing ragdoll, every joint at a random ± maximum torque", model,
                 model.initial_state(num_worlds), duration=100_000 / 60, quick_duration=2_000 / 60,
                 energy_tol=_energy_tol(75 * 9.81 * 1.0), anchor_bound=0.01, penetration_bound=0.05,
