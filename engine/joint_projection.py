@@ -26,8 +26,8 @@ stops once its error beyond the slop is within ``TOLERANCE`` of the slop: the
 passes converge linearly, about 50-70 times per pass under random maximum
 torques (8.1e-2, 4.6e-3, 6.6e-5, 8.6e-7 m beyond the 4 cm slop), so
 at the default slop two passes usually leave under 0.4 mm, where the four
-passes that always ran before went on to 1e-8 m for 40% more of the
-projection's time.
+that always ran before went on to 1e-8 m at nearly twice the projection's
+time (five Jacobians and four factorisations against three and two).
 
 Only errors beyond ``joint_projection_slop`` are projected, back to the slop:
 a soft joint carries its static load by its stretch, and taking that stretch
