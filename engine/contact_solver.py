@@ -266,9 +266,11 @@ class ContactRows:
             n, t1, t2 = c.n, c.t1, c.t2
             sep = self._separation(state, rows)
             valid = c.valid
-            if self.bouncy:
-                # Closing speeds at the row's start, before its own points'
-                # impulses: a face landing flat records one speed at all four.
+            # Closing speeds at the row's start, before its own points'
+            # impulses (a face landing flat records one speed at all four),
+            # for restitution: only while a point may still first take load.
+            record = self.bouncy and bool(((self.max_lam_n[rows] == 0) & valid).any())
+            if record:
                 vn_row = [dot(vb + cross(wb, c.rb[:, j]) - va - cross(wa, c.ra[:, j]), n)
                           for j in range(valid.shape[1])]
             # Rows between two moving bodies take NORMAL_PASSES passes over their
@@ -302,7 +304,7 @@ class ContactRows:
                 # Closing speed for restitution: the normal velocity just
                 # before the point first takes load in this step.
                 first = (self.max_lam_n[rows, j] == 0) & (new > 0)
-                if self.bouncy:
+                if record:
                     self.vn_close[rows, j] = np.where(first, vn_row[j], self.vn_close[rows, j])
                 self.s_close[rows, j] = np.where(first, s, self.s_close[rows, j])
                 self.lam_n[rows, j] = new
