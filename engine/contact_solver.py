@@ -100,6 +100,23 @@ class _Block:
         self.paired = cr.dyn_a[rows] & cr.dyn_b[rows]
         self.ka, self.kb = cr.ka[rows], cr.kb[rows]
         self.dyn_a, self.dyn_b = cr.dyn_a[rows], cr.dyn_b[rows]
+        # For the current separation: body-local lever arms, start positions and separations.
+        self.la, self.lb = cr.la[rows], cr.lb[rows]
+        self.xa0, self.xb0 = cr.xa0[rows], cr.xb0[rows]
+        self.sep0 = cr.sep0[rows]
+
+
+def _separation(state, c):
+    """Current separation (R, 4) of the rows of block ``c`` from their bodies'
+    displacement this step: s₀ + n·(Δ(x_b + r_b) - Δ(x_a + r_a))."""
+    pa = state.position.reshape(-1, 3)[c.ka]
+    pb = state.position.reshape(-1, 3)[c.kb]
+    qa = state.orientation.reshape(-1, 4)[c.ka]
+    qb = state.orientation.reshape(-1, 4)[c.kb]
+    ra = quat_rotate(qa[:, None], c.la)
+    rb = quat_rotate(qb[:, None], c.lb)
+    d = (pb - c.xb0)[:, None] + rb - c.rb - (pa - c.xa0)[:, None] - ra + c.ra
+    return c.sep0 + dot(d, c.n[:, None])
 
 
 class ContactRows:
@@ -235,14 +252,7 @@ class ContactRows:
 
     def _separation(self, state, rows):
         """Current separation (R, 4) from the bodies' displacement this step."""
-        pa = state.position.reshape(-1, 3)[self.ka[rows]]
-        pb = state.position.reshape(-1, 3)[self.kb[rows]]
-        qa = state.orientation.reshape(-1, 4)[self.ka[rows]]
-        qb = state.orientation.reshape(-1, 4)[self.kb[rows]]
-        ra = quat_rotate(qa[:, None], self.la[rows])
-        rb = quat_rotate(qb[:, None], self.lb[rows])
-        d = (pb - self.xb0[rows])[:, None] + rb - self.rb[rows] - (pa - self.xa0[rows])[:, None] - ra + self.ra[rows]
-        return self.sep0[rows] + dot(d, self.n[rows][:, None])
+        return _separation(state, self._block(rows, cache=False))
 
     def separation(self, state):
         """Current separation (rows, points) of every row, m."""
@@ -259,70 +269,103 @@ class ContactRows:
 
     def solve(self, model, state, h, use_bias, colors=None):
         """One sweep over ``colors`` (default: every row), in colour order."""
-        soft = self.soft
         for rows in self.colors if colors is None else colors:
-            c = self._block(rows)
-            va, wa, vb, wb = self._gather(state, c)
-            n, t1, t2 = c.n, c.t1, c.t2
-            sep = self._separation(state, rows)
-            valid = c.valid
-            # Closing speeds at the row's start, before its own points'
-            # impulses (a face landing flat records one speed at all four),
-            # for restitution: only while a point may still first take load.
-            record = self.bouncy and bool(((self.max_lam_n[rows] == 0) & valid).any())
+            self._solve_block(state, rows, self._block(rows), h, use_bias)
+
+    def _solve_block(self, state, rows, c, h, use_bias):
+        """One Gauss-Seidel sweep over the rows of one colour: normal points,
+        then friction points. Per point, with Ċ = v_rel·n and s the current
+        separation: Δλ = -m_n ms (Ċ + bias) - isc λ, λ >= 0, where an open
+        point (s > 0) is speculative (bias s/h, ms 1, isc 0) and a penetrating
+        one soft (bias rate·min(s + slop, 0) capped at max_push_out, soft
+        mass and impulse scales; the relax solve and the thesis: rigid, no
+        bias)."""
+        soft = self.soft
+        va, wa, vb, wb = self._gather(state, c)
+        n, t1, t2 = c.n, c.t1, c.t2
+        # Rows on a static body that stands still (the ground): its side of
+        # v_rel is zero and left out.
+        a_still = not (c.dyn_a.any() or va.any() or wa.any())
+
+        def v_rel(j):
+            """Relative velocity (R, 3) at point j: (v_b + ω_b × r_b) - (v_a + ω_a × r_a)."""
+            if a_still:
+                return vb + cross(wb, c.rb[:, j])
+            return vb + cross(wb, c.rb[:, j]) - va - cross(wa, c.ra[:, j])
+
+        sep = _separation(state, c)
+        valid = c.valid
+        P = valid.shape[1]
+        open_ = sep > 0
+        if use_bias and not self.thesis:
+            pen = np.minimum(sep + self.slop, 0.0)
+            bias = np.where(open_, sep / h, np.maximum(soft.bias_rate * pen, -self.max_push_out))
+            gain = -c.mn * np.where(open_, 1.0, soft.mass_scale)
+            isc = np.where(open_, 0.0, soft.impulse_scale)
+        else:
+            bias = np.where(open_, sep / h, 0.0)
+            gain, isc = -c.mn, None
+        # The rows' impulses, gathered once and written back after the sweep.
+        lam_n, max_lam_n = self.lam_n[rows], self.max_lam_n[rows]
+        s_close = self.s_close[rows]
+        # Closing speeds at the row's start, before its own points'
+        # impulses (a face landing flat records one speed at all four),
+        # for restitution: only while a point may still first take load.
+        record = self.bouncy and bool(((max_lam_n == 0) & valid).any())
+        if record:
+            vn_close = self.vn_close[rows]
+            vn_row = [dot(v_rel(j), n) for j in range(P)]
+        # Rows between two moving bodies take NORMAL_PASSES passes over their
+        # normal points: one pass in the fixed order 0..3 leaves the earlier
+        # points' residual speed in a pattern fixed by that order, a torque
+        # bias on both boxes that made a stack of 5 circle at 0.08 m/s at the
+        # defaults (at rest with 2 passes). Rows on a static body keep one
+        # pass: a second one there changed the standing PD's falls under the
+        # Balance pushes (feet on the ground) from 14 to 21 of 200 episodes.
+        paired = c.paired
+        passes = NORMAL_PASSES if paired.any() else 1
+        if passes > 1:
+            ok_later = valid & paired[:, None]  # later passes: paired rows solve ...
+            keep_later = valid & ~paired[:, None]  # ... the others keep their impulse
+        for k in range(passes * P):
+            j = k % P
+            vn = dot(v_rel(j), n)
+            lam = lam_n[:, j]
+            d = gain[:, j] * (vn + bias[:, j])
+            if isc is not None:
+                d = d - isc[:, j] * lam
+            if k < P:
+                new = np.where(valid[:, j], np.maximum(lam + d, 0.0), 0.0)
+            else:
+                new = np.where(ok_later[:, j], np.maximum(lam + d, 0.0), np.where(keep_later[:, j], lam, 0.0))
+            d = new - lam
+            # Closing speed for restitution: the normal velocity just
+            # before the point first takes load in this step.
+            first = (max_lam_n[:, j] == 0) & (new > 0)
             if record:
-                vn_row = [dot(vb + cross(wb, c.rb[:, j]) - va - cross(wa, c.ra[:, j]), n)
-                          for j in range(valid.shape[1])]
-            # Rows between two moving bodies take NORMAL_PASSES passes over their
-            # normal points: one pass in the fixed order 0..3 leaves the earlier
-            # points' residual speed in a pattern fixed by that order, a torque
-            # bias on both boxes that made a stack of 5 circle at 0.08 m/s at the
-            # defaults (at rest with 2 passes). Rows on a static body keep one
-            # pass: a second one there changed the standing PD's falls under the
-            # Balance pushes (feet on the ground) from 14 to 21 of 200 episodes.
-            paired = c.paired
-            passes = NORMAL_PASSES if paired.any() else 1
-            for k in range(passes * valid.shape[1]):
-                j = k % valid.shape[1]
-                ok = valid[:, j] & (paired if k >= valid.shape[1] else True)
-                keep = valid[:, j] & ~ok  # rows sitting out a pass keep their impulse
-                vrel = vb + cross(wb, c.rb[:, j]) - va - cross(wa, c.ra[:, j])
-                vn = dot(vrel, n)
-                s = sep[:, j]
-                if use_bias and not self.thesis:
-                    pen = np.minimum(s + self.slop, 0.0)
-                    bias = np.where(s > 0, s / h, np.maximum(soft.bias_rate * pen, -self.max_push_out))
-                    ms = np.where(s > 0, 1.0, soft.mass_scale)
-                    isc = np.where(s > 0, 0.0, soft.impulse_scale)
-                else:
-                    bias = np.where(s > 0, s / h, 0.0)
-                    ms, isc = 1.0, 0.0
-                lam = self.lam_n[rows, j]
-                d = -c.mn[:, j] * ms * (vn + bias) - isc * lam
-                new = np.where(ok, np.maximum(lam + d, 0.0), np.where(keep, lam, 0.0))
-                d = new - lam
-                # Closing speed for restitution: the normal velocity just
-                # before the point first takes load in this step.
-                first = (self.max_lam_n[rows, j] == 0) & (new > 0)
-                if record:
-                    self.vn_close[rows, j] = np.where(first, vn_row[j], self.vn_close[rows, j])
-                self.s_close[rows, j] = np.where(first, s, self.s_close[rows, j])
-                self.lam_n[rows, j] = new
-                self.max_lam_n[rows, j] = np.maximum(self.max_lam_n[rows, j], new)
-                va, wa, vb, wb = self._apply(c, j, d[:, None] * n, va, wa, vb, wb)
-            for j in range(valid.shape[1]):
-                ok = valid[:, j]
-                vrel = vb + cross(wb, c.rb[:, j]) - va - cross(wa, c.ra[:, j])
-                l1, l2 = self.lam_t1[rows, j], self.lam_t2[rows, j]
-                n1 = l1 - c.mt1[:, j] * dot(vrel, t1)
-                n2 = l2 - c.mt2[:, j] * dot(vrel, t2)
-                scale = _coulomb_scale(n1, n2, c.mu[:, j] * self.lam_n[rows, j])
-                n1 = np.where(ok, n1 * scale, 0.0)
-                n2 = np.where(ok, n2 * scale, 0.0)
-                self.lam_t1[rows, j], self.lam_t2[rows, j] = n1, n2
-                P = (n1 - l1)[:, None] * t1 + (n2 - l2)[:, None] * t2
-                va, wa, vb, wb = self._apply(c, j, P, va, wa, vb, wb)
-            self._scatter(state, c, va, wa, vb, wb)
+                vn_close[:, j] = np.where(first, vn_row[j], vn_close[:, j])
+            s_close[:, j] = np.where(first, sep[:, j], s_close[:, j])
+            lam_n[:, j] = new
+            max_lam_n[:, j] = np.maximum(max_lam_n[:, j], new)
+            va, wa, vb, wb = self._apply(c, j, d[:, None] * n, va, wa, vb, wb)
+        lam_t1, lam_t2 = self.lam_t1[rows], self.lam_t2[rows]
+        limit = c.mu * lam_n
+        for j in range(P):
+            vrel = v_rel(j)
+            l1, l2 = lam_t1[:, j], lam_t2[:, j]
+            n1 = l1 - c.mt1[:, j] * dot(vrel, t1)
+            n2 = l2 - c.mt2[:, j] * dot(vrel, t2)
+            scale = _coulomb_scale(n1, n2, limit[:, j])
+            n1 = np.where(valid[:, j], n1 * scale, 0.0)
+            n2 = np.where(valid[:, j], n2 * scale, 0.0)
+            impulse = (n1 - l1)[:, None] * t1 + (n2 - l2)[:, None] * t2
+            lam_t1[:, j], lam_t2[:, j] = n1, n2
+            va, wa, vb, wb = self._apply(c, j, impulse, va, wa, vb, wb)
+        self._scatter(state, c, va, wa, vb, wb)
+        self.lam_n[rows], self.max_lam_n[rows], self.s_close[rows] = lam_n, max_lam_n, s_close
+        self.lam_t1[rows], self.lam_t2[rows] = lam_t1, lam_t2
+        if record:
+            self.vn_close[rows] = vn_close
 
     def restitution(self, model, state):
         """Bounce once per step: sequential impacts from the closing speeds."""

@@ -68,7 +68,6 @@ def rotate_free(model, q, omega, h):
     """
     inertia = model.inertia_safe
     lb = inertia * quat_rotate_inv(q, omega)
-    dq = np.zeros(q.shape)  # one buffer for the five partial rotations
     for axis, frac in _SPLIT:
         j, k = (axis + 1) % 3, (axis + 2) % 3
         theta = (frac * h) * lb[..., axis] / inertia[:, axis]
@@ -76,12 +75,23 @@ def rotate_free(model, q, omega, h):
         lj, lk = lb[..., j].copy(), lb[..., k]
         lb[..., j] = c * lj + s * lk
         lb[..., k] = c * lk - s * lj
-        dq[..., 1:] = 0.0
-        dq[..., 0] = np.cos(0.5 * theta)
-        dq[..., 1 + axis] = np.sin(0.5 * theta)
-        q = quat_mul(q, dq)
+        q = _turn_about_axis(q, axis, np.cos(0.5 * theta), np.sin(0.5 * theta))
     q = quat_normalize(q)
     return q, quat_rotate(q, lb / inertia)
+
+
+def _turn_about_axis(q, axis, c, s):
+    """q ⊗ (c, s e_axis): the Hamilton product with a rotation about a body
+    axis, its zero terms left out (the same sums as ``quat_mul``)."""
+    j, k = 1 + (axis + 1) % 3, 1 + (axis + 2) % 3
+    a = 1 + axis
+    qw, qa, qj, qk = q[..., 0], q[..., a], q[..., j], q[..., k]
+    out = np.empty(q.shape)
+    out[..., 0] = qw * c - qa * s
+    out[..., a] = qw * s + qa * c
+    out[..., j] = qj * c + qk * s
+    out[..., k] = qk * c - qj * s
+    return out
 
 
 def integrate_velocities(model, state, control, h):

@@ -12,8 +12,18 @@ from __future__ import annotations
 import numpy as np
 
 
+#: Below these many elements, ``dot`` and ``mat_vec`` multiply once and sum the
+#: products with one ``np.add.reduce`` along the last axis: the same sums in the
+#: same order (((p0 + p1) + p2) per row, whatever the batch), in 2 numpy calls
+#: instead of 8-11, 2-3x faster on a few vectors; above them the reduction's
+#: short inner loop loses (3-4x slower at 1024 worlds x 16 bodies).
+REDUCE_BELOW = 384
+
+
 def dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Dot product over the last axis (size 3)."""
+    if a.size < REDUCE_BELOW and b.size < REDUCE_BELOW:
+        return np.add.reduce(a * b, axis=-1)
     return a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1] + a[..., 2] * b[..., 2]
 
 
@@ -190,6 +200,8 @@ def skew(v: np.ndarray) -> np.ndarray:
 def mat_vec(m: np.ndarray, v: np.ndarray) -> np.ndarray:
     """(..., 3, 3) @ (..., 3), written out: row i is m_i0 v_0 + m_i1 v_1 + m_i2 v_2,
     summed left to right in either form (see ``COMPONENT_WISE_FROM``)."""
+    if m.size < REDUCE_BELOW // 4 * 3 and v.size < REDUCE_BELOW // 4:
+        return np.add.reduce(m * v[..., None, :], axis=-1)
     if v.size < 3 * COMPONENT_WISE_FROM and m.size < 9 * COMPONENT_WISE_FROM:
         # The columns scaled by v's components, summed in place.
         out = m[..., 0] * v[..., 0:1]

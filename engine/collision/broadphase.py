@@ -69,13 +69,15 @@ def aabb(shape_type, params, pos, quat):
     """
     shape_type = np.asarray(shape_type)
     params = np.asarray(params, dtype=float)
-    m = np.abs(quat_to_matrix(quat))  # (W, N, 3, 3); columns are the body axes
-    r = params[:, 0:1]
-    sphere = np.broadcast_to(r, pos.shape)
-    capsule = r + params[:, 1:2] * m[..., :, 2]
-    box = params[:, 0:1] * m[..., :, 0] + params[:, 1:2] * m[..., :, 1] + params[:, 2:3] * m[..., :, 2]
     kind = shape_type[:, None]
-    half = np.where(kind == SPHERE, sphere, np.where(kind == CAPSULE, capsule, np.where(kind == BOX, box, 0.0)))
+    r = params[:, 0:1]
+    half = np.where(kind == SPHERE, np.broadcast_to(r, pos.shape), 0.0)
+    turned = (kind == CAPSULE) | (kind == BOX)
+    if turned.any():  # extents that turn with the body (spheres and planes have none)
+        m = np.abs(quat_to_matrix(quat))  # (W, N, 3, 3); columns are the body axes
+        capsule = r + params[:, 1:2] * m[..., :, 2]
+        box = params[:, 0:1] * m[..., :, 0] + params[:, 1:2] * m[..., :, 1] + params[:, 2:3] * m[..., :, 2]
+        half = np.where(kind == CAPSULE, capsule, np.where(kind == BOX, box, half))
     lo = pos - half
     hi = pos + half
     lo = np.where(kind == PLANE, -np.inf, np.where(kind == NONE, np.inf, lo))
