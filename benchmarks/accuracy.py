@@ -74,6 +74,11 @@ DURATIONS = {
 }
 # Durations set by the physics (five bounces, the box coming to rest): --duration-scale leaves them.
 FIXED_DURATION = ("bouncing_ball", "sliding_box")
+# Runs per setting (the median wall time is kept): the scenarios that take a
+# second or less a run, whose costs (a few hundredths of a wall second per
+# simulated second, mostly per-step overhead) a single run on this shared
+# machine put 10-30% off, enough to swap two settings on the cost axis.
+REPEATS = {"bouncing_ball": 5, "sliding_box": 5}
 # Ragdoll reference: dt / DIV with SUBSTEPS substeps and 2 iterations (full, quick).
 RAGDOLL_REFERENCE = ((8, 8), (4, 8))
 SAMPLE_DT = 1 / 30  # trajectory samples and torque schedule: a multiple of every dt in the grid
@@ -460,11 +465,15 @@ def _label(r):
 
 
 def markdown(rows, notes, durations, quick, scale=1.0):
+    repeats = {r["scenario"]: r.get("repeats", 1) for r in rows if r["settings"].get("engine") != "mujoco"}
     cmd = "python -m benchmarks.accuracy" + (" --quick" if quick else "") + \
         (f" --duration-scale {scale:g}" if scale != 1.0 else "")
     lines = ["# Accuracy against cost", "",
              f"Written by `{cmd}`. "
-             "Each scenario is run once per setting (one world); `wall s/sim s` is the median over "
+             "Each scenario is run once per setting (one world"
+             + "".join(f"; {k} {n} times" for k, n in repeats.items() if n > 1)
+             + (", in rounds over the settings, the median kept" if any(n > 1 for n in repeats.values()) else "")
+             + "); `wall s/sim s` is the median over "
              f"{CHUNK_S:g} s chunks of the wall time spent in `step` per simulated second. "
              "Errors are relative unless the name ends in a unit (`_m`, `_rad`). "
              "**bold** = default `Settings()`; `thesis` rows use solver=thesis with the explicit Euler "
@@ -559,6 +568,9 @@ def plot(rows, path):
 def parse_args(argv):
     p = argparse.ArgumentParser(prog="python -m benchmarks.accuracy", description=__doc__.split("\n")[0])
     p.add_argument("--quick", action="store_true", help=f"{len(QUICK_GRID)} settings, shorter runs")
+    p.add_argument("--repeats", type=int, default=None, metavar="N",
+                   help="runs per setting, the median wall time kept (default: "
+                        + ", ".join(f"{k} {v}" for k, v in REPEATS.items()) + ", the others 1)")
     p.add_argument("--json", metavar="PATH", help="write the rows as a JSON list")
     p.add_argument("--out-dir", default="docs", help="where accuracy.md and accuracy.png go (default docs)")
     p.add_argument("--scenarios", nargs="+", choices=list(SCENARIOS), default=list(SCENARIOS))
@@ -584,6 +596,8 @@ def parse_args(argv):
 
 def main(argv=None):
     args = parse_args(argv)
+    if args.repeats is not None and args.repeats < 1:
+        raise SystemExit(f"--repeats must be at least 1, got {args.repeats}")
     pick = 1 if args.quick else 0
     durations = {k: DURATIONS[k][pick] * (1.0 if k in FIXED_DURATION else args.duration_scale)
                  for k in args.scenarios}
@@ -601,22 +615,35 @@ def main(argv=None):
             if r.get("note") and r["note"] not in notes:
                 notes.append(r["note"])
     for name in ([] if args.from_json else args.scenarios):
+        repeats = args.repeats or REPEATS.get(name, 1)
+        walls = {label: [] for label in args.settings}
+        results = {}
+        for _ in range(repeats):  # rounds over the settings, so a slow spell of the machine hits them all
+            for label in args.settings:
+                s = replace(DEFAULT, **grid[label])
+                t0 = time.perf_counter()
+                try:
+                    errors, wall = SCENARIOS[name](s, durations[name], ctx)
+                    note = None
+                except e.SimulationError as exc:
+                    errors, wall, note = {}, None, f"{name} / {label}: {exc}"
+                errors = {k: (None if v is None or not math.isfinite(v) else float(v)) for k, v in errors.items()}
+                if label in results and results[label][0] != errors:
+                    raise RuntimeError(f"{name} / {label}: a repeat gave other errors (not deterministic)")
+                results[label] = (errors, note)
+                if wall is not None:
+                    walls[label].append(wall)
+                print(f"  {name:16s} {label:26s} {PRIMARY[name]} {format_value(errors.get(PRIMARY[name]))}  "
+                      f"wall/sim {format_value(wall)}  ({time.perf_counter() - t0:.1f} s)", flush=True)
         for label in args.settings:
-            s = replace(DEFAULT, **grid[label])
-            t0 = time.perf_counter()
-            try:
-                errors, wall = SCENARIOS[name](s, durations[name], ctx)
-                note = None
-            except e.SimulationError as exc:
-                errors, wall, note = {}, None, f"{name} / {label}: {exc}"
-                notes.append(note)
-            errors = {k: (None if v is None or not math.isfinite(v) else float(v)) for k, v in errors.items()}
-            row = {"scenario": name, "settings": settings_dict(label, s), "errors": errors, "wall_s_per_sim_s": wall}
+            errors, note = results[label]
+            wall = statistics.median(walls[label]) if walls[label] else None
+            row = {"scenario": name, "settings": settings_dict(label, replace(DEFAULT, **grid[label])),
+                   "errors": errors, "wall_s_per_sim_s": wall, "repeats": repeats}
             if note:
                 row["note"] = note
+                notes.append(note)
             rows.append(row)
-            print(f"  {name:16s} {label:26s} {PRIMARY[name]} {format_value(errors.get(PRIMARY[name]))}  "
-                  f"wall/sim {format_value(wall)}  ({time.perf_counter() - t0:.1f} s)", flush=True)
     if args.from_json:
         rows = [r for r in loaded if r["scenario"] in args.scenarios]
         if any(r["settings"].get("engine") == "mujoco" for r in rows):

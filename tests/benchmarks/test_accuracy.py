@@ -48,3 +48,20 @@ def test_mujoco_reference_rows(tmp_path):
     mj = [r for r in rows if r["settings"].get("engine") == "mujoco"]
     assert {r["settings"]["timestep"] for r in mj} == {0.002, 0.0005}
     assert all(r["errors"]["period_rel_error"] < 0.01 for r in mj)
+
+
+def test_repeats_keep_one_row_per_setting_with_the_median_cost(tmp_path):
+    path = tmp_path / "accuracy.json"
+    main(["--scenarios", "bouncing_ball", "spring", "--settings", "dt=1/30 sub=1", "--duration-scale", "0.05",
+          "--no-mujoco", "--no-plot", "--json", str(path), "--out-dir", str(tmp_path)])
+    rows = json.loads(path.read_text())
+    keys = [(r["scenario"], r["settings"]["label"]) for r in rows]
+    assert len(keys) == len(set(keys))
+    assert {r["scenario"]: r["repeats"] for r in rows} == {"bouncing_ball": 5, "spring": 1}
+    main(["--scenarios", "spring", "--settings", "dt=1/30 sub=1", "--duration-scale", "0.05", "--repeats", "2",
+          "--no-mujoco", "--no-plot", "--json", str(path), "--out-dir", str(tmp_path)])
+    rows = json.loads(path.read_text())
+    assert {r["repeats"] for r in rows} == {2} and all(r["wall_s_per_sim_s"] > 0 for r in rows)
+    assert "spring 2 times" in (tmp_path / "accuracy.md").read_text()
+    with pytest.raises(SystemExit):
+        main(["--repeats", "0"])
