@@ -18,6 +18,7 @@ import numpy as np
 #: instead of 8-11, 2-3x faster on a few vectors; above them the reduction's
 #: short inner loop loses (3-4x slower at 1024 worlds x 16 bodies).
 REDUCE_BELOW = 384
+MAT_VEC_REDUCE_BELOW = 96  # elements of v (a third of dot's: each vector takes nine products)
 
 
 def dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -80,7 +81,7 @@ _QSIGN = np.array([1, -1, -1, -1, 1, 1, 1, -1, 1, -1, 1, 1, 1, 1, -1, 1], dtype=
 
 def quat_mul(p: np.ndarray, q: np.ndarray) -> np.ndarray:
     """Hamilton product ``p ⊗ q`` of ``(..., 4)`` quaternions in (w, x, y, z) order."""
-    if p.size < 4 * COMPONENT_WISE_FROM // 4 and q.size < 4 * COMPONENT_WISE_FROM // 4:
+    if p.size < COMPONENT_WISE_FROM and q.size < COMPONENT_WISE_FROM:
         # Few quaternions: the 16 signed products in one array, each row summed
         # by one reduction, in the order of the sums below (5 numpy calls, not 40).
         t = p.take(_QP, -1) * q.take(_QQ, -1) * _QSIGN
@@ -230,7 +231,7 @@ def skew(v: np.ndarray) -> np.ndarray:
 def mat_vec(m: np.ndarray, v: np.ndarray) -> np.ndarray:
     """(..., 3, 3) @ (..., 3), written out: row i is m_i0 v_0 + m_i1 v_1 + m_i2 v_2,
     summed left to right in either form (see ``COMPONENT_WISE_FROM``)."""
-    if m.size < REDUCE_BELOW // 4 * 3 and v.size < REDUCE_BELOW // 4:
+    if v.size < MAT_VEC_REDUCE_BELOW and m.size < 3 * MAT_VEC_REDUCE_BELOW:
         return np.add.reduce(m * v[..., None, :], axis=-1)
     if v.size < 3 * COMPONENT_WISE_FROM and m.size < 9 * COMPONENT_WISE_FROM:
         # The columns scaled by v's components, summed in place.
