@@ -233,6 +233,7 @@ class JointSet:
         if self.breakable:
             self.effect_names.add("joint_breaking")
         self.settings = settings
+        self._load_impulse = None  # within a step: λ before the substep's biased solve (geometric stiffness)
         self._iinv = None
         self._all = np.arange(J)
         self._frames_on = False  # frames of _frames_state cached between begin_step and end_step
@@ -273,7 +274,22 @@ class JointSet:
         impulse at its end, through the inertia of a link tilted 0.01 rad
         before, has a component along the new axis, 7x amplified; 250 rad/s
         in 4 s and +40 J in 5 s for a ball on a chain pinned at both ends,
-        benchmarks.stability chain_loop with rigid joints)."""
+        benchmarks.stability chain_loop with rigid joints).
+
+        The geometric stiffness of this metric (used by the relax and by the
+        next substep's biased solve) takes each joint's load as the smaller
+        of |λ| before and after the biased solve: the load the joint carries
+        through the substep, not the biased solve's position correction
+        (an impulse of m C/h when a joint has opened by C, which is no load).
+        With |λ| after the biased solve, the 100:1 ball and chain
+        (benchmarks.stability, 10 s) opened its joints by 9.9-40 mm
+        depending on where in space it hung (ten offsets: the spikes of the
+        correction, stiffening the relax's metric, amplified rounding), with
+        the smaller one by 3.0 mm at every offset; with |λ| before it alone
+        a chain of thin links gained 20 J in 30 s (the relax projects the
+        velocities in the stiffened metric, which can raise the kinetic
+        energy; tests/engine/test_joints.py thin_chain_axial_spin: 0.35 J at
+        most over 30 s with the smaller, 0.50 J with the after value)."""
         self._frames = None
         self._drop_position_caches()
         if state is not None:
@@ -428,6 +444,7 @@ class JointSet:
         self._soft = make_soft(gs_hz, s.gs_joint_damping_ratio, h)
         self._limit_soft = make_soft(s.limit_hertz, s.gs_joint_damping_ratio, h)
         self._substeps_done = 0
+        self._load_impulse = None
         if s.solver == "thesis":
             self._soft = make_soft(0.0, 0.0, h)  # rigid rows, position error by projection
             self._limit_soft = self._tree_soft = self._soft
@@ -505,6 +522,8 @@ class JointSet:
         if self.breakable and self._substeps_done:
             self._add_load(state)  # λ at the end of the previous substep
         self._substeps_done += 1
+        if self.tree is not None and self.tree.geometric_weight is not None:
+            self._load_impulse = state.joint_linear_impulse.copy()  # the load before this substep's solve
         for color in self.colors:
             idx = color["all"]
             a, b, fpw, fcw, ra, rb = self.frames(state, idx)
@@ -1106,7 +1125,13 @@ class _TreeSolver(_Rows):
             for idx, weight in parts:
                 _, _, _, _, ra, rb = js.frames(state, idx)
                 lam = state.joint_linear_impulse[:, idx]
-                f = np.sqrt(dot(lam, lam)) * h * weight  # h² |F| = h |λ|
+                f = np.sqrt(dot(lam, lam))
+                if js._load_impulse is not None:
+                    # Within a step: the smaller of the loads before and after this
+                    # substep's biased solve (see JointSet.positions_moved).
+                    before = js._load_impulse[:, idx]
+                    f = np.minimum(f, np.sqrt(dot(before, before)))
+                f = f * h * weight  # h² |F| = h |λ|
                 for body, r in ((js.parent[idx], ra), (js.child[idx], rb)):
                     rn = np.sqrt(dot(r, r))
                     g = f / np.maximum(rn, 1e-12)

@@ -132,9 +132,6 @@ SLOW_XFAIL = {
                    "Gauss-Seidel loop rows, 4.9 mm in the fast test's 1 s)",
     "large_dt_ragdoll": "measured (quick run): anchor error 4.0 cm > 1 cm (the joint post-stabilisation's slop), "
                         "penetration 4.0 cm > 3 cm",
-    "ball_and_chain_far": "measured (full run): anchor error 2.97 cm > 1 cm 10 km out (at the origin within the "
-                          "bound); bisected to a35f377 (joint inverse inertias refreshed before the relax solve, "
-                          "which stopped thin links' spin being pumped); 4.1 mm before it",
 }
 for _n in ("stack_20", "sphere_grid"):
     SLOW_XFAIL[_n + "_far"] = SLOW_XFAIL[_n]
