@@ -233,7 +233,7 @@ class JointSet:
         if self.breakable:
             self.effect_names.add("joint_breaking")
         self.settings = settings
-        self._load_impulse = None  # within a step: λ before the substep's biased solve (geometric stiffness)
+        self._load_before = None  # within a step: |λ| (W, J) before the substep's biased solve (geometric stiffness)
         self._iinv = None
         self._all = np.arange(J)
         self._frames_on = False  # frames of _frames_state cached between begin_step and end_step
@@ -444,7 +444,7 @@ class JointSet:
         self._soft = make_soft(gs_hz, s.gs_joint_damping_ratio, h)
         self._limit_soft = make_soft(s.limit_hertz, s.gs_joint_damping_ratio, h)
         self._substeps_done = 0
-        self._load_impulse = None
+        self._load_before = None
         if s.solver == "thesis":
             self._soft = make_soft(0.0, 0.0, h)  # rigid rows, position error by projection
             self._limit_soft = self._tree_soft = self._soft
@@ -523,7 +523,8 @@ class JointSet:
             self._add_load(state)  # λ at the end of the previous substep
         self._substeps_done += 1
         if self.tree is not None and self.tree.geometric_weight is not None:
-            self._load_impulse = state.joint_linear_impulse.copy()  # the load before this substep's solve
+            lam = state.joint_linear_impulse
+            self._load_before = np.sqrt(dot(lam, lam))  # the load before this substep's solve
         for color in self.colors:
             idx = color["all"]
             a, b, fpw, fcw, ra, rb = self.frames(state, idx)
@@ -1126,11 +1127,10 @@ class _TreeSolver(_Rows):
                 _, _, _, _, ra, rb = js.frames(state, idx)
                 lam = state.joint_linear_impulse[:, idx]
                 f = np.sqrt(dot(lam, lam))
-                if js._load_impulse is not None:
+                if js._load_before is not None:
                     # Within a step: the smaller of the loads before and after this
                     # substep's biased solve (see JointSet.positions_moved).
-                    before = js._load_impulse[:, idx]
-                    f = np.minimum(f, np.sqrt(dot(before, before)))
+                    f = np.minimum(f, js._load_before[:, idx])
                 f = f * h * weight  # h² |F| = h |λ|
                 for body, r in ((js.parent[idx], ra), (js.child[idx], rb)):
                     rn = np.sqrt(dot(r, r))
