@@ -236,6 +236,15 @@ class JointSet:
         self._load_before = None  # within a step: |λ| (W, J) before the substep's biased solve (geometric stiffness)
         self._iinv = None
         self._all = np.arange(J)
+        # warm_start: the joints colour by colour, and the order of their parent
+        # (first J) and child (last J) terms in its scatter: per colour, parents then children.
+        self._warm_joints = np.concatenate([c["all"] for c in self.colors]).astype(np.int64) if J else self._all
+        self._warm_hinge = self.kind[self._warm_joints] == HINGE
+        sizes = np.cumsum([0] + [len(c["all"]) for c in self.colors])
+        n = len(self._warm_joints)
+        self._warm_order = np.concatenate([np.r_[lo:hi, n + lo:n + hi] for lo, hi in zip(sizes[:-1], sizes[1:])]
+                                          ).astype(np.int64) if n else np.zeros(0, dtype=np.int64)
+        self._warm_bodies = np.concatenate((self.parent[self._warm_joints], self.child[self._warm_joints]))[self._warm_order]
         self._frames_on = False  # frames of _frames_state cached between begin_step and end_step
         self._frames = self._frames_state = None
         self._limits = self._swing_twist = None  # of every joint, cached with the frames
@@ -525,20 +534,29 @@ class JointSet:
         if self.tree is not None and self.tree.geometric_weight is not None:
             lam = state.joint_linear_impulse
             self._load_before = np.sqrt(dot(lam, lam))  # the load before this substep's solve
-        for color in self.colors:
-            idx = color["all"]
-            a, b, fpw, fcw, ra, rb = self.frames(state, idx)
-            P = state.joint_linear_impulse[:, idx]
-            L = state.joint_angular_impulse[:, idx].copy()
-            hinge = self.kind[idx] == HINGE
-            # Hinge lock impulses are stored in the parent frame's (y, z) axes.
-            if hinge.any():
-                by = quat_rotate(fpw, np.broadcast_to(_EY, ra.shape))
-                bz = quat_rotate(fpw, np.broadcast_to(_EZ, ra.shape))
-                lh = L[..., 1:2] * by + L[..., 2:3] * bz
-                L = np.where(hinge[:, None], lh, L)
-            L = L + self._limit_vector(state, idx)
-            self._apply(model, state, a, b, ra, rb, P, L)
+        # The stored impulses move velocities only (no row reads them), so every
+        # joint's are applied in one scatter, each body's terms in colour order,
+        # parent's before child's within a colour: the sums of a sweep colour by
+        # colour, in one call.
+        idx = self._warm_joints
+        a, b, fpw, fcw, ra, rb = self.frames(state, idx)
+        P = state.joint_linear_impulse[:, idx]
+        L = state.joint_angular_impulse[:, idx]
+        hinge = self._warm_hinge
+        # Hinge lock impulses are stored in the parent frame's (y, z) axes.
+        if hinge.any():
+            by = quat_rotate(fpw, np.broadcast_to(_EY, ra.shape))
+            bz = quat_rotate(fpw, np.broadcast_to(_EZ, ra.shape))
+            lh = L[..., 1:2] * by + L[..., 2:3] * bz
+            L = np.where(hinge[:, None], lh, L)
+        L = L + self._limit_vector(state, idx)
+        inv_m = model.inv_mass
+        ang_a = mat_vec(self._iinv[:, a], cross(ra, P) + L)
+        ang_b = mat_vec(self._iinv[:, b], cross(rb, P) + L)
+        order, bodies = self._warm_order, self._warm_bodies
+        np.add.at(state.velocity, (slice(None), bodies),
+                  np.concatenate((-(P * inv_m[a][:, None]), P * inv_m[b][:, None]), axis=1)[:, order])
+        np.add.at(state.angular_velocity, (slice(None), bodies), np.concatenate((-ang_a, ang_b), axis=1)[:, order])
 
     def _limit_vector(self, state, idx):
         lam = state.joint_limit_impulse[:, idx]
