@@ -50,9 +50,13 @@ GRID = [
     ("it=2", dict(iterations=2)),
     ("it=4", dict(iterations=4)),
     ("free relax=0", dict(free_contact_relax_passes=0)),
+    ("relax=0", dict(relax_iterations=0, free_contact_relax_passes=0)),
+    ("greedy", dict(contact_coloring="greedy")),
     ("euler", dict(integrator="euler")),
     ("rk4", dict(integrator="rk4")),
     ("dt=1/30 sub=1", dict(dt=1 / 30, substeps=1)),
+    ("sub=1 relax=0", dict(substeps=1, relax_iterations=0, free_contact_relax_passes=0)),
+    ("dt=1/30 sub=1 relax=0", dict(dt=1 / 30, substeps=1, relax_iterations=0, free_contact_relax_passes=0)),
     ("dt=1/120 sub=8 it=2", dict(dt=1 / 120, substeps=8, iterations=2)),
     ("accurate", dict(ACCURATE)),
     ("thesis dt=1/60", dict(substeps=1, **THESIS)),
@@ -464,6 +468,49 @@ def _label(r):
     return r["settings"].get("label", "")
 
 
+def _primary(r, name):
+    v = r["errors"].get(PRIMARY[name])
+    return v if v is not None and math.isfinite(v) else None
+
+
+def thesis_dominance(rows):
+    """Each thesis-baseline point against this engine's settings, per scenario:
+    a list of (scenario, thesis row, the cheapest row of this engine's own
+    solver that costs no more and errs less on the scenario's primary metric,
+    or None). The acceptance asks for every thesis point to be so dominated."""
+    out = []
+    for name in dict.fromkeys(r["scenario"] for r in rows):
+        sub = [r for r in rows if r["scenario"] == name and r["wall_s_per_sim_s"] is not None
+               and r["settings"].get("engine") != "mujoco"]
+        ours = [r for r in sub if r["settings"].get("solver") != "thesis" and _primary(r, name) is not None]
+        for t in (r for r in sub if r["settings"].get("thesis_baseline")):
+            te = _primary(t, name)
+            better = [r for r in ours if r["wall_s_per_sim_s"] <= t["wall_s_per_sim_s"]
+                      and (te is None or _primary(r, name) < te)]
+            out.append((name, t, min(better, key=lambda r: r["wall_s_per_sim_s"]) if better else None))
+    return out
+
+
+def dominance_lines(rows):
+    """Markdown lines: the thesis points and what dominates each."""
+    found = thesis_dominance(rows)
+    if not found:
+        return []
+    n = sum(1 for *_, d in found if d is not None)
+    lines = ["## Against the thesis baseline", "",
+             f"{n} of {len(found)} thesis points are dominated: some setting of this engine's solver costs no "
+             "more (wall s/sim s) and errs less on the scenario's plotted metric. Costs come from the same run "
+             "only where the rows were measured together.", "",
+             "| scenario | thesis point | error | wall s/sim s | cheapest dominating setting | its error | its wall s/sim s |",
+             "|---|---|---|---|---|---|---|"]
+    for name, t, d in found:
+        cells = [name, _label(t), format_value(_primary(t, name)), format_value(t["wall_s_per_sim_s"])]
+        cells += ([_label(d), format_value(_primary(d, name)), format_value(d["wall_s_per_sim_s"])] if d
+                  else ["not dominated", "", ""])
+        lines.append("| " + " | ".join(cells) + " |")
+    return lines + [""]
+
+
 def markdown(rows, notes, durations, quick, scale=1.0):
     repeats = {r["scenario"]: r.get("repeats", 1) for r in rows if r["settings"].get("engine") != "mujoco"}
     cmd = "python -m benchmarks.accuracy" + (" --quick" if quick else "") + \
@@ -505,6 +552,7 @@ def markdown(rows, notes, durations, quick, scale=1.0):
             cells += [format_value(r["wall_s_per_sim_s"]), "◆" if i in front else ""]
             lines.append("| " + " | ".join(cells) + " |")
         lines.append("")
+    lines += dominance_lines(rows)
     lines.append(machine_note())
     lines += [f"note: {n}" for n in notes]
     return "\n".join(lines) + "\n"
@@ -662,6 +710,11 @@ def main(argv=None):
         print()
         print_table(sub, [("setting", _label)] + [(k, (lambda r, k=k: r["errors"].get(k))) for k in metrics]
                     + [("wall s/sim s", "wall_s_per_sim_s")], title=f"{name} (simulated {durations[name]:g} s)")
+    found = thesis_dominance(rows)
+    if found:
+        print(f"\nthesis points dominated: {sum(1 for *_, d in found if d is not None)} of {len(found)}")
+        for name, t, d in found:
+            print(f"  {name:16s} {_label(t):22s} " + (f"by {_label(d)}" if d else "not dominated"))
     print(machine_note())
     for n in notes:
         print(f"note: {n}")

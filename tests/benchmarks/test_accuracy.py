@@ -3,7 +3,7 @@ import math
 
 import pytest
 
-from benchmarks.accuracy import PRIMARY, main
+from benchmarks.accuracy import PRIMARY, dominance_lines, main, thesis_dominance
 
 SCENARIOS = ["pendulum", "spring", "bouncing_ball", "ragdoll"]
 
@@ -36,6 +36,7 @@ def test_quick_subset_writes_rows_markdown_and_plot(tmp_path):
             "bodies_traj_rms_m"} <= ragdoll["errors"].keys()
     md = (tmp_path / "accuracy.md").read_text()
     assert "## pendulum" in md and "**default**" in md
+    assert "## Against the thesis baseline" in md
     assert (tmp_path / "accuracy.png").stat().st_size > 0
 
 
@@ -65,3 +66,25 @@ def test_repeats_keep_one_row_per_setting_with_the_median_cost(tmp_path):
     assert "spring 2 times" in (tmp_path / "accuracy.md").read_text()
     with pytest.raises(SystemExit):
         main(["--repeats", "0"])
+
+
+def _row(scenario, label, error, cost, solver="soft_step", thesis=False, engine=None):
+    settings = {"label": label, "solver": solver, "thesis_baseline": thesis}
+    if engine:
+        settings["engine"] = engine
+    return {"scenario": scenario, "settings": settings, "errors": {PRIMARY[scenario]: error}, "wall_s_per_sim_s": cost}
+
+
+def test_thesis_dominance_takes_the_cheapest_setting_that_costs_no_more_and_errs_less():
+    rows = [_row("pendulum", "thesis a", 0.1, 1.0, "thesis", True),
+            _row("pendulum", "thesis b", 0.001, 0.5, "thesis", True),
+            _row("pendulum", "cheap", 0.05, 0.2),
+            _row("pendulum", "tie", 0.1, 0.9),            # same error: not lower
+            _row("pendulum", "accurate", 0.0001, 1.0),   # same cost: allowed
+            _row("pendulum", "mujoco", 1e-9, 0.001, "mujoco", engine="mujoco"),  # not this engine
+            _row("pendulum", "failed", None, 0.1)]
+    found = {t["settings"]["label"]: d and d["settings"]["label"] for _, t, d in thesis_dominance(rows)}
+    assert found == {"thesis a": "cheap", "thesis b": None}
+    md = "\n".join(dominance_lines(rows))
+    assert "1 of 2 thesis points are dominated" in md and "not dominated" in md
+    assert dominance_lines([_row("spring", "default", 0.1, 1.0)]) == []
