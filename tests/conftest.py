@@ -1,9 +1,11 @@
 """Test ordering shared by every test directory.
 
 The slow selection is dominated by a few long runs; they are collected first so
-that with two workers (``python -m pytest -q -m slow -n 2``, which hands out
-tests round-robin) the two longest start at once on different workers, and
-the shorter ones fill in around them instead of the longest starting last.
+that with two workers (``python -m pytest -q -m slow -n 2 --dist loadgroup``)
+the 100,000-step run and the 1,000-world soak start at once on different
+workers, and the shorter ones fill in around them instead of the longest
+starting last. The soak's two tests form one xdist group (``test_soak.py``):
+they share one soak, computed once on their worker.
 """
 
 from __future__ import annotations
