@@ -81,6 +81,7 @@ def train_until_solved(engine: str, seed: int, max_steps: int, eval_freq: int, e
     import torch
     from stable_baselines3 import PPO
     from stable_baselines3.common.callbacks import BaseCallback
+    from stable_baselines3.common.logger import Logger
     from stable_baselines3.common.vec_env import VecNormalize
 
     from training.common import policy_kwargs
@@ -95,6 +96,7 @@ def train_until_solved(engine: str, seed: int, max_steps: int, eval_freq: int, e
     policy = ppo.pop("policy")
     ppo["policy_kwargs"] = policy_kwargs(ppo.get("policy_kwargs"))
     model = PPO(policy, venv, seed=seed, device="cpu", verbose=0, **ppo)
+    model.set_logger(Logger(folder=None, output_formats=[]))  # SB3's default makes a /tmp/SB3-<date> folder per run
     result = {"solved_at_steps": None, "solved_at_wall_s": None, "final_eval_return": None}
 
     class SolveCheck(BaseCallback):

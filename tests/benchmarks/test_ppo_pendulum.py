@@ -1,5 +1,6 @@
 import json
 import math
+import tempfile
 
 import pytest
 
@@ -12,10 +13,13 @@ KEYS = {"env_id", "engine", "seed", "solved_at_steps", "solved_at_wall_s", "fina
 
 
 @pytest.mark.parametrize("engine", ["ragdoll", "mujoco"])
-def test_short_run_writes_rows(tmp_path, engine):
+def test_short_run_writes_rows(tmp_path, engine, monkeypatch):
     if engine == "mujoco":
         pytest.importorskip("mujoco")
     path = tmp_path / "ppo.json"
+    scratch = tmp_path / "tmp"
+    scratch.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(scratch))  # where SB3's default logger makes SB3-<date>
     # An impossible threshold: the run goes to --max-steps and reports null.
     main(["--seeds", "0", "--engines", engine, "--max-steps", "2048", "--eval-freq", "1024",
           "--eval-episodes", "1", "--threshold", "2.0", "--json", str(path)])
@@ -28,6 +32,7 @@ def test_short_run_writes_rows(tmp_path, engine):
     assert row["solved_at_steps"] is None and row["solved_at_wall_s"] is None
     assert 0.0 < row["final_eval_return"] <= 1000.0
     assert math.isfinite(row["train_wall_s"]) and row["train_wall_s"] > 0
+    assert not list(scratch.glob("SB3-*")), "the benchmark left an SB3 log folder in the temporary directory"
 
 
 def test_solved_run_reports_steps_and_seconds(tmp_path):

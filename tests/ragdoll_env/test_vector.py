@@ -180,11 +180,13 @@ def test_sb3_adapter_rejects_bad_actions():
 
 def test_ppo_learns_on_the_sb3_adapter():
     import stable_baselines3
+    import stable_baselines3.common.logger
 
     from ragdoll_env.sb3 import make_sb3_vec_env
 
     venv = make_sb3_vec_env("Ragdoll/InvertedPendulum-v0", num_envs=2, seed=0, monitor=True)
     model = stable_baselines3.PPO("MlpPolicy", venv, n_steps=64, batch_size=64, n_epochs=2, seed=0, device="cpu")
+    model.set_logger(stable_baselines3.common.logger.Logger(folder=None, output_formats=[]))  # no /tmp/SB3-<date>
     model.learn(128)
     action, _ = model.predict(venv.reset(), deterministic=True)
     assert action.shape == (2, 1)
