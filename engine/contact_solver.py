@@ -10,7 +10,7 @@ centres (fixed for the step) and relative velocity v_rel = (v_b + ω_b × r_b)
   Δ(x_a + r_a)) recomputed each substep from the bodies' displacement, so the
   narrow phase runs once per step. While open (s > 0) the row is speculative:
   bias s/h, rigid; when penetrating, the biased solve uses the contact
-  softness (stiffness min(contact_hertz, substep rate / 8), Box2D v3) with the
+  softness (stiffness min(contact_hertz, substep rate / 4), Box2D v3) with the
   push-out speed capped at ``max_push_out``; the relax solve is rigid with no
   bias. The accumulated impulse λ_n ≥ 0.
 * friction: two tangent rows, rigid, with the accumulated tangent impulse
