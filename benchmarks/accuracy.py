@@ -1,7 +1,8 @@
 """Accuracy against cost: error of analytic or converged references next to wall time.
 
-    python -m benchmarks.accuracy [--quick] [--json PATH] [--out-dir docs]
-        [--scenarios ...] [--duration-scale X] [--no-mujoco]
+    python -m benchmarks.accuracy [--quick] [--json PATH] [--out-dir DIR]
+        [--scenarios ...] [--settings LABEL ...] [--duration-scale X] [--repeats N]
+        [--no-mujoco] [--no-plot] [--from-json PATH]
 
 Scenarios (reference in brackets): pendulum period [elliptic integral] and energy
 drift, undamped double pendulum energy [conserved], torque-free spinning box
@@ -13,14 +14,18 @@ penetration, and trajectory error against the same scene at a much finer step].
 
 Each scenario runs once per setting of the grid (dt, substeps, iterations,
 integrator, solver); wall time is taken around ``step`` only, per chunk of
-simulated time, and the median chunk gives ``wall_s_per_sim_s``. Writes
-``OUT_DIR/accuracy.md`` and ``OUT_DIR/accuracy.png`` (error vs cost, Pareto
-front) and, with ``--json``, rows {scenario, settings, errors, wall_s_per_sim_s}.
+simulated time, and the median chunk gives ``wall_s_per_sim_s``. Always
+writes ``OUT_DIR/accuracy.md`` and (unless ``--no-plot``) ``OUT_DIR/accuracy.png``
+(error vs cost, Pareto front), ``--out-dir`` defaulting to ``docs``; the rows
+{scenario, settings, errors, wall_s_per_sim_s} go to a JSON file only with
+``--json PATH``. ``--from-json PATH`` runs nothing: it redraws accuracy.md and
+accuracy.png from such a file.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import os
 import statistics
@@ -34,7 +39,7 @@ from engine import diagnostics as D
 from engine.settings import ACCURATE, Settings
 
 from . import scenarios as sc
-from .common import format_value, machine_note, print_table, write_json
+from .common import format_value, machine_note, positive_float, positive_int, print_table, write_json
 
 # ---------------------------------------------------------------- the grid
 DEFAULT = Settings()
@@ -616,19 +621,21 @@ def plot(rows, path):
 def parse_args(argv):
     p = argparse.ArgumentParser(prog="python -m benchmarks.accuracy", description=__doc__.split("\n")[0])
     p.add_argument("--quick", action="store_true", help=f"{len(QUICK_GRID)} settings, shorter runs")
-    p.add_argument("--repeats", type=int, default=None, metavar="N",
+    p.add_argument("--repeats", type=positive_int, default=None, metavar="N",
                    help="runs per setting, the median wall time kept (default: "
                         + ", ".join(f"{k} {v}" for k, v in REPEATS.items()) + ", the others 1)")
-    p.add_argument("--json", metavar="PATH", help="write the rows as a JSON list")
-    p.add_argument("--out-dir", default="docs", help="where accuracy.md and accuracy.png go (default docs)")
+    p.add_argument("--json", metavar="PATH", help="also write the rows as a JSON list to PATH "
+                   "(e.g. docs/accuracy.json, which --from-json reads)")
+    p.add_argument("--out-dir", metavar="DIR", default="docs",
+                   help="where accuracy.md and accuracy.png are written (default docs, the committed report)")
     p.add_argument("--scenarios", nargs="+", choices=list(SCENARIOS), default=list(SCENARIOS))
     p.add_argument("--settings", nargs="+", metavar="LABEL", help="grid rows by label (default: all / quick set)")
-    p.add_argument("--duration-scale", type=float, default=1.0, help="multiply the simulated durations (not the bouncing "
+    p.add_argument("--duration-scale", type=positive_float, default=1.0, help="multiply the simulated durations (not the bouncing "
                    "ball's or the sliding box's, which the physics sets)")
     p.add_argument("--no-mujoco", action="store_true", help="skip the MuJoCo reference rows")
     p.add_argument("--no-plot", action="store_true", help="skip accuracy.png")
-    p.add_argument("--from-json", metavar="PATH", help="only re-render accuracy.md/.png from rows written before "
-                   "(give the same --quick/--duration-scale for the durations line)")
+    p.add_argument("--from-json", metavar="PATH", help="run nothing: redraw accuracy.md/.png in --out-dir from rows "
+                   "written before with --json (give the same --quick/--duration-scale for the durations line)")
     args = p.parse_args(argv)
     labels = [g[0] for g in GRID]
     args.settings = args.settings or (QUICK_GRID if args.quick else labels)
@@ -637,15 +644,51 @@ def parse_args(argv):
         p.error(f"unknown settings {sorted(unknown)}; choose from {labels}")
     if "default" not in args.settings:
         args.settings = ["default"] + list(args.settings)
-    if not args.duration_scale > 0:
-        p.error("--duration-scale must be > 0")
+    # Checked before the run, not after it: the writes come at the end.
+    if os.path.exists(args.out_dir) and not os.path.isdir(args.out_dir):
+        p.error(f"--out-dir {args.out_dir}: exists and is not a directory")
+    if args.json and os.path.isdir(args.json):
+        p.error(f"--json {args.json}: is a directory; give a file path such as {os.path.join(args.json, 'accuracy.json')}")
+    args.loaded_rows = None
+    if args.from_json:
+        if args.json:
+            p.error("--json writes the rows of a run, and --from-json runs nothing; give one of them")
+        try:
+            args.loaded_rows = load_rows(args.from_json)
+        except FileNotFoundError:
+            p.error(f"--from-json {args.from_json}: no such file (a run writes one with --json PATH)")
+        except OSError as exc:
+            p.error(f"--from-json {args.from_json}: cannot read it ({exc.strerror or exc})")
+        except ValueError as exc:
+            p.error(f"--from-json {args.from_json}: {exc}")
+        present = {r["scenario"] for r in args.loaded_rows}
+        args.scenarios = [name for name in args.scenarios if name in present]
+        if not args.scenarios:
+            p.error(f"--from-json {args.from_json}: no rows of the chosen scenarios (the file has "
+                    f"{sorted(present) or 'none'})")
     return args
+
+
+def load_rows(path):
+    """The rows of an earlier ``--json`` file; ``ValueError`` saying what is
+    wrong if it is not such a file."""
+    with open(path, encoding="utf-8") as f:
+        try:
+            rows = json.load(f)
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+            raise ValueError(f"not JSON ({exc})") from None
+    if not isinstance(rows, list):
+        raise ValueError("not a JSON list of rows (written by --json PATH)")
+    for i, r in enumerate(rows):
+        if not (isinstance(r, dict) and r.get("scenario") in SCENARIOS and isinstance(r.get("settings"), dict)
+                and isinstance(r.get("errors"), dict) and "wall_s_per_sim_s" in r):
+            raise ValueError(f"row {i} is not a row of this benchmark ({{scenario, settings, errors, "
+                             f"wall_s_per_sim_s}}, scenario one of {list(SCENARIOS)}): {str(r)[:120]}")
+    return rows
 
 
 def main(argv=None):
     args = parse_args(argv)
-    if args.repeats is not None and args.repeats < 1:
-        raise SystemExit(f"--repeats must be at least 1, got {args.repeats}")
     pick = 1 if args.quick else 0
     durations = {k: DURATIONS[k][pick] * (1.0 if k in FIXED_DURATION else args.duration_scale)
                  for k in args.scenarios}
@@ -655,10 +698,7 @@ def main(argv=None):
     ctx = {"ragdoll_reference_spec": RAGDOLL_REFERENCE[pick]}
     rows, notes = [], []
     if args.from_json:
-        import json
-
-        with open(args.from_json, encoding="utf-8") as f:
-            loaded = json.load(f)
+        loaded = args.loaded_rows
         for r in loaded:
             if r.get("note") and r["note"] not in notes:
                 notes.append(r["note"])
@@ -727,7 +767,7 @@ def main(argv=None):
         png = os.path.join(args.out_dir, "accuracy.png")
         plot(rows, png)
         print(f"wrote {png}")
-    if args.json and not args.from_json:
+    if args.json:
         write_json(args.json, rows)
         print(f"wrote {args.json}")
     return rows

@@ -1,18 +1,26 @@
-"""Helpers shared by the benchmarks: timing medians, tables and JSON output.
+"""Helpers shared by the benchmarks: timing medians, tables, JSON output and
+argument checks.
 
 A measurement is described by ``make_run(n)``: untimed setup for ``n`` steps
 that returns a callable doing the timed work. ``measure`` warms up, picks a
 step count (unless given) so one repeat takes about ``target_s`` seconds, and
 returns the median wall time of the repeats, taken with ``time.perf_counter``.
+
+``positive_int``, ``nonnegative_int``, ``positive_float`` and
+``settings_json`` are argparse ``type=`` functions: a bad value is a usage
+error naming the option, not a traceback from inside a run.
 """
 
 from __future__ import annotations
 
+import argparse
+import difflib
 import json
 import math
 import os
 import statistics
 import time
+from dataclasses import fields, replace
 
 
 def timed(run) -> float:
@@ -93,3 +101,78 @@ def write_json(path: str, rows) -> None:
     with open(path, "w", encoding="utf-8") as f:
         json.dump(rows, f, indent=2)
         f.write("\n")
+
+
+# ------------------------------------------------------------ argument checks
+def positive_int(text: str) -> int:
+    """argparse type: an integer >= 1."""
+    return _int_at_least(text, 1)
+
+
+def nonnegative_int(text: str) -> int:
+    """argparse type: an integer >= 0."""
+    return _int_at_least(text, 0)
+
+
+def _int_at_least(text: str, low: int) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be an integer >= {low}, got {text!r}") from None
+    if value < low:
+        raise argparse.ArgumentTypeError(f"must be an integer >= {low}, got {text!r}")
+    return value
+
+
+def positive_float(text: str) -> float:
+    """argparse type: a finite number > 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a number > 0, got {text!r}") from None
+    if not (value > 0 and math.isfinite(value)):
+        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text!r}")
+    return value
+
+
+def settings_json(text: str) -> dict:
+    """argparse type: a JSON object of ``engine.Settings`` fields and values
+    (``Infinity`` for inf), checked as ``Settings`` checks them, so a
+    misspelt name or a bad value stops the command before anything runs."""
+    from engine.settings import Settings
+
+    example = """'{"substeps": 8}'"""
+    try:
+        value = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise argparse.ArgumentTypeError(f"not valid JSON ({exc}): {text!r}; e.g. {example}") from None
+    if not isinstance(value, dict):
+        raise argparse.ArgumentTypeError(f"must be a JSON object of setting names and values, e.g. {example}; "
+                                         f"got {text!r}")
+    defaults = Settings()
+    names = [f.name for f in fields(Settings)]
+    unknown = [k for k in value if k not in names]
+    if unknown:
+        hints = [f"{k!r} (did you mean {close[0]!r}?)" if (close := difflib.get_close_matches(k, names, n=1))
+                 else repr(k) for k in unknown]
+        raise argparse.ArgumentTypeError(f"unknown setting{'s' if len(unknown) > 1 else ''} {', '.join(hints)}; "
+                                         f"settings: {', '.join(names)}")
+    for name, v in value.items():
+        default = getattr(defaults, name)
+        if isinstance(default, bool):
+            ok, want = isinstance(v, bool), "true or false"
+        elif isinstance(default, int):
+            ok, want = isinstance(v, int) and not isinstance(v, bool), "an integer"
+        elif isinstance(default, float):
+            ok, want = isinstance(v, (int, float)) and not isinstance(v, bool), "a number (Infinity for inf)"
+        elif isinstance(default, str):
+            ok, want = isinstance(v, str), "a string"
+        else:
+            ok, want = True, ""
+        if not ok:
+            raise argparse.ArgumentTypeError(f"setting {name!r} must be {want}, got {json.dumps(v)}")
+    try:
+        replace(defaults, **value).validate()
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc).removeprefix("settings: ")) from None
+    return value

@@ -1,7 +1,7 @@
 """What each effect costs: step time with the effect switched on and off.
 
-    python -m benchmarks.effects [--worlds 1 256] [--scenes ...] [--repeats R]
-        [--target-seconds S] [--quick] [--json PATH]
+    python -m benchmarks.effects [--worlds 1 256] [--scenes ...] [--steps N] [--repeats R]
+        [--target-seconds S] [--settle-steps N] [--quick] [--json PATH] [--markdown PATH]
 
 Scenes: ``inverted_pendulum`` (a pole on an actuated hinge to the world, no
 ground), ``ragdoll_ground``, ``ragdoll_air`` and ``box_pile`` (12 boxes on the
@@ -31,7 +31,8 @@ import numpy as np
 import engine as e
 
 from . import scenarios as sc
-from .common import calibrate, machine_note, print_table, timed, write_json
+from .common import (calibrate, machine_note, nonnegative_int, positive_float, positive_int, print_table, timed,
+                     write_json)
 from .throughput import random_controls
 
 EFFECTS = ("gravity", "springs", "damping", "motors", "contacts", "friction", "restitution", "joint_limits",
@@ -263,12 +264,13 @@ def markdown(rows, lines):
 
 def parse_args(argv):
     p = argparse.ArgumentParser(prog="python -m benchmarks.effects", description=__doc__.split("\n")[0])
-    p.add_argument("--worlds", type=int, nargs="+", help="world counts (default 1 256)")
+    p.add_argument("--worlds", type=positive_int, nargs="+", help="world counts (default 1 256)")
     p.add_argument("--scenes", nargs="+", choices=list(BASE), default=list(BASE))
-    p.add_argument("--steps", type=int, help="steps per timed repeat (default: enough for --target-seconds)")
-    p.add_argument("--repeats", type=int, help="timed repeats, the median is reported (default 5)")
-    p.add_argument("--target-seconds", type=float, default=0.3)
-    p.add_argument("--settle-steps", type=int, help=f"steps of one world before timing (default {SETTLE_STEPS})")
+    p.add_argument("--steps", type=positive_int, help="steps per timed repeat (default: enough for --target-seconds)")
+    p.add_argument("--repeats", type=positive_int, help="timed repeats, the median is reported (default 5)")
+    p.add_argument("--target-seconds", type=positive_float, default=0.3,
+                   help="wall time per repeat when --steps is not given (default 0.3)")
+    p.add_argument("--settle-steps", type=nonnegative_int, help=f"steps of one world before timing (default {SETTLE_STEPS})")
     p.add_argument("--quick", action="store_true", help="W = 1 8, 3 steps, 2 repeats, 1 settle step: a smoke test")
     p.add_argument("--json", metavar="PATH", help="write the rows as a JSON list")
     p.add_argument("--markdown", metavar="PATH", help="write the table as markdown (e.g. docs/effects.md)")

@@ -1,6 +1,7 @@
 """Hard cases: do they stay numerically stable?
 
     python -m benchmarks.stability [--quick] [--json PATH] [--case NAME ...] [--list]
+        [--settings JSON]
 
 Runs each hard-case scene of :mod:`benchmarks.scenes` for its stated time
 (``--quick``: the shortened duration the fast tests use; the random-torque
@@ -23,11 +24,10 @@ ragdoll runs 2,000 steps instead of 100,000) and prints per case:
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 
-from .common import machine_note, print_table, write_json
+from .common import machine_note, print_table, settings_json, write_json
 from .scenes import case_names, make_case, run_case
 
 
@@ -37,23 +37,32 @@ def _fmt(x, digits=3):
     return f"{x:.{digits}g}"
 
 
-def main(argv=None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+def parse_args(argv=None):
+    """The options, checked (unknown cases, bad --settings: a usage error)."""
+    p = argparse.ArgumentParser(prog="python -m benchmarks.stability", description=__doc__.split("\n")[0])
     p.add_argument("--quick", action="store_true", help="shortened durations (as the fast tests)")
     p.add_argument("--json", metavar="PATH", help="write the results as JSON")
     p.add_argument("--case", nargs="+", metavar="NAME", help="only these cases")
     p.add_argument("--list", action="store_true", help="list the cases and exit")
-    p.add_argument("--settings", metavar="JSON", type=json.loads, default={},
-                   help='engine settings over each case\'s own, e.g. \'{"substeps": 8}\' (Infinity for inf)')
+    p.add_argument("--settings", metavar="JSON", type=settings_json, default={},
+                   help='engine settings (engine.Settings fields) over each case\'s own, e.g. '
+                        '\'{"substeps": 8}\' (Infinity for inf)')
     args = p.parse_args(argv)
+    if args.case:
+        names = case_names()
+        unknown = [n for n in args.case if n not in names]
+        if unknown:
+            p.error(f"unknown case(s) {unknown}; cases: {names}")
+    return args
+
+
+def main(argv=None) -> int:
+    args = parse_args(argv)
     names = case_names()
     if args.list:
         print("\n".join(names))
         return 0
     if args.case:
-        unknown = [n for n in args.case if n not in names]
-        if unknown:
-            p.error(f"unknown case(s) {unknown}; cases: {names}")
         names = args.case
     rows = []
     for name in names:

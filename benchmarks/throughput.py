@@ -1,8 +1,8 @@
 """Throughput of batched ragdoll scenes, with MuJoCo's humanoid measured side by side.
 
     python -m benchmarks.throughput [--worlds 1 16 256 1024 4096] [--scenes ...]
-        [--steps N] [--repeats R] [--quick] [--json PATH] [--compare-mujoco]
-        [--processes P ...]
+        [--steps N] [--repeats R] [--target-seconds S] [--quick] [--json PATH]
+        [--compare-mujoco] [--mujoco-worlds N] [--processes P ...]
 
 For each scene and world count W: world-steps per second, simulated seconds
 per wall-clock second (world-steps/s x dt) and bytes per world (the state plus
@@ -24,7 +24,7 @@ import numpy as np
 from engine import Box, Capsule, Control, ParallelStepper, SceneBuilder, Sphere, step
 from engine.humanoid import add_humanoid
 
-from .common import machine_note, measure, print_table, write_json
+from .common import machine_note, measure, positive_float, positive_int, print_table, write_json
 
 DEFAULT_WORLDS = (1, 16, 256, 1024, 4096)
 QUICK_WORLDS = (1, 8)
@@ -327,16 +327,16 @@ COLUMNS = [
 
 def parse_args(argv):
     p = argparse.ArgumentParser(prog="python -m benchmarks.throughput", description=__doc__.split("\n")[0])
-    p.add_argument("--worlds", type=int, nargs="+", help=f"world counts W (default {' '.join(map(str, DEFAULT_WORLDS))})")
-    p.add_argument("--steps", type=int, help="steps per timed repeat (default: enough for --target-seconds)")
-    p.add_argument("--repeats", type=int, help="timed repeats; the median is reported (default 3)")
+    p.add_argument("--worlds", type=positive_int, nargs="+", help=f"world counts W (default {' '.join(map(str, DEFAULT_WORLDS))})")
+    p.add_argument("--steps", type=positive_int, help="steps per timed repeat (default: enough for --target-seconds)")
+    p.add_argument("--repeats", type=positive_int, help="timed repeats; the median is reported (default 3)")
     p.add_argument("--scenes", nargs="+", choices=list(SCENES), default=list(SCENES))
-    p.add_argument("--target-seconds", type=float, default=1.0, help="wall time per repeat when --steps is not given")
+    p.add_argument("--target-seconds", type=positive_float, default=1.0, help="wall time per repeat when --steps is not given")
     p.add_argument("--quick", action="store_true", help="small W list, few steps: a smoke test")
     p.add_argument("--json", metavar="PATH", help="write the rows as a JSON list")
     p.add_argument("--compare-mujoco", action="store_true", help="measure MuJoCo's humanoid and Humanoid-v5 too")
-    p.add_argument("--mujoco-worlds", type=int, help=f"worlds of the MuJoCo rollouts (default {MUJOCO_WORLDS})")
-    p.add_argument("--processes", type=int, nargs="+", default=[],
+    p.add_argument("--mujoco-worlds", type=positive_int, help=f"worlds of the MuJoCo rollouts (default {MUJOCO_WORLDS})")
+    p.add_argument("--processes", type=positive_int, nargs="+", default=[],
                    help="also step each W >= P in P worker processes (engine.ParallelStepper): "
                         "rows of mode batched-Pproc")
     args = p.parse_args(argv)
@@ -348,10 +348,6 @@ def parse_args(argv):
     args.worlds = args.worlds or list(DEFAULT_WORLDS)
     args.repeats = args.repeats or 3
     args.mujoco_worlds = args.mujoco_worlds or MUJOCO_WORLDS
-    if min(args.worlds) < 1 or args.repeats < 1 or (args.steps is not None and args.steps < 1):
-        p.error("--worlds, --steps and --repeats must be >= 1")
-    if any(n < 1 for n in args.processes):
-        p.error("--processes must be >= 1")
     return args
 
 

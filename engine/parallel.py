@@ -8,12 +8,12 @@ move into one anonymous shared mapping that the workers inherit (forked, with
 the model as it was when the stepper was made); a step sends each worker its
 slice of the control through a pipe and waits for all of them.
 
-On this 2-core machine two processes stepped the ragdoll on the ground 1.3x
-as fast as one at W = 64, 1.6x at 256 and 1.5x at 1024 (in the air 1.9x),
-and slower at W = 16 (``python -m benchmarks.throughput --processes 2``, the
-README's table); two separate processes each stepping half the worlds, with
-no messages, were 1.35x, 1.6x and 1.7x: memory bandwidth, not cores, bounds
-the large batches.
+What two processes gain over one depends on W and on the machine: see the
+``batched-2proc`` rows against the ``batched`` rows of the README's
+Throughput table (``python -m benchmarks.throughput --processes 2``). On the
+2-core machine of that table the gain grows with W, to 1.8-2x at W = 1024
+(on the ground and in the air); at W = 16 it is small (about 1.1x), the
+messages costing about what the second core gains.
 """
 
 from __future__ import annotations

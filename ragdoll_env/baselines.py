@@ -167,6 +167,12 @@ class LQR(Controller):
 
     def __init__(self, env, q=None, r=1.0):
         super().__init__(env)
+        if not isinstance(self.task, ChainTask):
+            task = self.task.env_id or type(self.task).__name__
+            fits = ("'standing_pd' (which 'pd' picks there) and 'zero'" if isinstance(self.task, BalanceTask)
+                    else "'zero'")
+            raise TypeError(f"the LQR baseline is for the pendulum tasks (Ragdoll/InvertedPendulum-v0, "
+                            f"Ragdoll/InvertedDoublePendulum-v0), not {task}; the baselines for {task}: {fits}")
         self.A, self.B = linearize(self.core)
         n = self.A.shape[0]
         k = n // 2

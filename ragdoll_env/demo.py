@@ -1,6 +1,7 @@
 """The passive ragdoll: drop the humanoid (zero torque) down a flight of stairs or onto boxes.
 
     python -m ragdoll_env.demo --out DIR [--frames N] [--scene stairs|boxes] [--video]
+        [--seconds S] [--width PX] [--height PX] [--fps N] [--seed N]
 
 Writes ``DIR/<scene>_strip.png`` (N frames evenly spaced over ``--seconds``,
 tiled by :func:`ragdoll_env.render.frame_strip`) and with ``--video`` also
@@ -71,6 +72,10 @@ def build_scene(scene: str, seed: int = 0, dt: float = 1 / 60, substeps: int = 4
 def run(out: str, scene: str = "stairs", frames: int = 8, seconds: float = 3.0, video: bool = False,
         width: int = 320, height: int = 240, fps: int = 30, seed: int = 0) -> dict:
     """Simulate and write the strip (and video); returns the written paths."""
+    if not (seconds > 0 and math.isfinite(seconds)):
+        raise ValueError(f"seconds must be a finite number > 0, got {seconds!r}")
+    if not fps >= 1:
+        raise ValueError(f"fps must be >= 1, got {fps!r}")
     os.makedirs(out, exist_ok=True)
     model, h, state = build_scene(scene, seed)
     renderer = Renderer.from_model(model, width=width, height=height)
@@ -147,20 +152,50 @@ def write_video(frames, path: str, fps: int) -> str:
     return path
 
 
+def _int_at_least(low: int):
+    """argparse type: an integer >= ``low``."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            value = None
+        if value is None or value < low:
+            raise argparse.ArgumentTypeError(f"must be an integer >= {low}, got {text!r}")
+        return value
+
+    return parse
+
+
+def _positive_seconds(text: str) -> float:
+    """argparse type: a finite number > 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (value > 0 and math.isfinite(value)):
+        raise argparse.ArgumentTypeError(f"must be a finite number of seconds > 0, got {text!r}")
+    return value
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m ragdoll_env.demo", description=__doc__.split("\n\n")[0])
     p.add_argument("--out", required=True, help="output directory")
-    p.add_argument("--frames", type=int, default=8, help="frames in the PNG strip (default 8)")
+    p.add_argument("--frames", type=_int_at_least(1), default=8, help="frames in the PNG strip (default 8)")
     p.add_argument("--scene", choices=("stairs", "boxes"), default="stairs")
     p.add_argument("--video", action="store_true", help="also write an MP4")
-    p.add_argument("--seconds", type=float, default=3.0, help="simulated time (default 3 s)")
-    p.add_argument("--width", type=int, default=320)
-    p.add_argument("--height", type=int, default=240)
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seconds", type=_positive_seconds, default=3.0, help="simulated time (default 3 s)")
+    p.add_argument("--width", type=_int_at_least(1), default=320, help="image width in pixels (default 320)")
+    p.add_argument("--height", type=_int_at_least(1), default=240, help="image height in pixels (default 240)")
+    p.add_argument("--fps", type=_int_at_least(1), default=30,
+                   help="video frames per simulated second with --video (default 30; a whole number of 1/60 s "
+                        "steps per frame, so at most 60)")
+    p.add_argument("--seed", type=_int_at_least(0), default=0, help="seed of the boxes scene (default 0)")
     args = p.parse_args(argv)
-    if args.frames < 1:
-        p.error("--frames must be >= 1")
-    paths = run(args.out, args.scene, args.frames, args.seconds, args.video, args.width, args.height, seed=args.seed)
+    if os.path.exists(args.out) and not os.path.isdir(args.out):
+        p.error(f"--out {args.out}: exists and is not a directory")
+    paths = run(args.out, args.scene, args.frames, args.seconds, args.video, args.width, args.height,
+                fps=args.fps, seed=args.seed)
     for kind, path in paths.items():
         print(f"{kind}: {path}")
     return 0

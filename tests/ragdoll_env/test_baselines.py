@@ -116,6 +116,18 @@ def test_make_baseline_rejects_unknown_and_mismatched():
         LQR(balance)
 
 
+def test_lqr_on_balance_says_what_fits():
+    balance = make("Ragdoll/Balance-v0")
+    with pytest.raises(TypeError) as exc:
+        make_baseline("lqr", balance)
+    msg = str(exc.value)
+    assert "LQR baseline is for the pendulum tasks" in msg and "Ragdoll/Balance-v0" in msg
+    assert "'standing_pd'" in msg and "'zero'" in msg
+    assert "linearize" not in msg
+    for name in ("standing_pd", "pd", "zero"):  # the ones it names do fit
+        make_baseline(name, balance)
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("env_id", PENDULUMS)
 def test_lqr_reaches_the_maximum_return(env_id):
