@@ -15,6 +15,7 @@ in P worker processes (mode ``batched-Pproc``; memory not measured there).
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import tracemalloc
 import warnings
@@ -24,7 +25,7 @@ import numpy as np
 from engine import Box, Capsule, Control, ParallelStepper, SceneBuilder, Sphere, step
 from engine.humanoid import add_humanoid
 
-from .common import machine_note, measure, positive_float, positive_int, print_table, write_json
+from .common import machine_note, measure, positive_float, positive_int, print_table, settings_json, write_json
 
 DEFAULT_WORLDS = (1, 16, 256, 1024, 4096)
 QUICK_WORLDS = (1, 8)
@@ -145,9 +146,13 @@ def bench_parallel(name, model, worlds, processes, args):
 
 def ragdoll_rows(args, notes):
     rows = []
+    if args.settings:
+        notes.append(f"ragdoll rows with the engine settings {json.dumps(args.settings)}")
     for name in args.scenes:
         try:
             model = SCENES[name]()
+            if args.settings:
+                model = model.with_settings(**args.settings)
         except Exception as exc:
             notes.append(f"{name}: skipped, the scene does not build: {exc}")
             continue
@@ -336,6 +341,8 @@ def parse_args(argv):
     p.add_argument("--json", metavar="PATH", help="write the rows as a JSON list")
     p.add_argument("--compare-mujoco", action="store_true", help="measure MuJoCo's humanoid and Humanoid-v5 too")
     p.add_argument("--mujoco-worlds", type=positive_int, help=f"worlds of the MuJoCo rollouts (default {MUJOCO_WORLDS})")
+    p.add_argument("--settings", type=settings_json, default={}, metavar="JSON",
+                   help="engine settings over each ragdoll scene's own, e.g. '{\"articulated_contacts\": true}'")
     p.add_argument("--processes", type=positive_int, nargs="+", default=[],
                    help="also step each W >= P in P worker processes (engine.ParallelStepper): "
                         "rows of mode batched-Pproc")

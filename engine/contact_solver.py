@@ -35,6 +35,10 @@ centres (fixed for the step) and relative velocity v_rel = (v_b + ω_b × r_b)
   height at 60 Hz), taken at the start of the row's sweep so all points of a
   face share it.
 
+With ``Settings.articulated_contacts`` the rows between a static body and
+jointed bodies leave the colours and are solved with the articulation's
+response instead (``articulated_contacts``; ``ContactRows.attach``).
+
 Rows are swept colour by colour (no (world, body) twice in a colour; the
 colouring: ``Settings.contact_coloring``), the 4 points of a row in
 sequence: the normal points (twice, ``NORMAL_PASSES``, in a row between two
@@ -199,6 +203,7 @@ class ContactRows:
             priority, first_fit = np.arange(w.size), False
         self.colors = color_rows(self.ka, self.kb, self.dyn_a, self.dyn_b, state.num_worlds * N, priority, first_fit)
         self._free_colors = None
+        self.articulated = None  # ArticulatedContacts of this step's rows on articulations, if attached
         self._blocks = {}  # id(rows) -> _Block of the colours (and free colours) of this step
 
     # ------------------------------------------------------------------------
@@ -240,6 +245,8 @@ class ContactRows:
         self.warm_starts += 1
         lam = self.lam_n[..., None] * self.n[:, None] + self.lam_t1[..., None] * self.t1[:, None] \
             + self.lam_t2[..., None] * self.t2[:, None]
+        if self.articulated is not None:
+            self.articulated.warm_start(state, self)
         if not lam.any():
             return
         for rows in self.colors:
@@ -271,6 +278,19 @@ class ContactRows:
         """One sweep over ``colors`` (default: every row), in colour order."""
         for rows in self.colors if colors is None else colors:
             self._solve_block(state, rows, self._block(rows), h, use_bias)
+        if colors is None and self.articulated is not None:
+            self.articulated.solve(state, self, h, use_bias)
+
+    def attach(self, articulated):
+        """Hand the rows of ``articulated`` (an ``ArticulatedContacts``) to it:
+        they leave the colours, and the warm start and every sweep end with
+        its contact-space solve."""
+        if articulated.empty:
+            return
+        self.articulated = articulated
+        taken = np.zeros(self.w.size, dtype=bool)
+        taken[articulated.rows] = True
+        self.colors = [r for r in (rows[~taken[rows]] for rows in self.colors) if r.size]
 
     def _solve_block(self, state, rows, c, h, use_bias):
         """One Gauss-Seidel sweep over the rows of one colour: normal points,
@@ -388,6 +408,8 @@ class ContactRows:
         held = bounce & self.jointed[:, None]
         if held.any():
             self._bounce_in_place(state, held, first_target)
+            if self.articulated is not None:
+                self.articulated.bounce(state, self, held, first_target)
         free = bounce.any(axis=1) & ~self.jointed
         if free.any():
             self._impacts(state, free, loaded & ~self.jointed[:, None], bounce, first_target)

@@ -4,7 +4,9 @@
 
     step(model, state, control) -> state
       collide      contact candidates and manifolds, once per step (if contacts)
-      prepare      constraint anchors and effective masses (if joints/contacts)
+      prepare      constraint anchors and effective masses (if joints/contacts);
+                   with articulated_contacts, the contact-space response of
+                   the articulations on static bodies
       substeps     integrate velocities (force effects); implicit velocity effects;
                    warm start + biased solve; integrate positions; relax solve
                    (and further relax passes over the contacts of unjointed bodies)
@@ -21,6 +23,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .articulated_contacts import ArticulatedContacts
 from .control import Control
 from .errors import SimulationError
 from .integrators import explicit_euler, integrate_positions, integrate_velocities, runge_kutta4
@@ -67,6 +70,8 @@ def step(model, state, control: Control | None = None):
         touching = contacts.bodies_in_contact(state)
     if joints is not None:
         joints.begin_step(model, state, h, touching)
+        if s.articulated_contacts and contacts is not None and contacts.rows is not None:
+            contacts.rows.attach(ArticulatedContacts(model, state, contacts.rows, joints))
     for _ in range(s.substeps):
         if passive:
             # Passive joint springs and dampers act on the constrained velocities of

@@ -1,0 +1,199 @@
+"""Contacts of articulations on static bodies, solved with the articulation's
+response (``Settings.articulated_contacts``).
+
+The contact solver (``contact_solver``) gives each row the effective mass of
+the one body it touches: a 1 kg foot stops, and the joint solve after it hands
+the impulse to the 70 kg body above, so against rigid joints a resting
+ragdoll chatters and its joints open (the default soft tree joints let the two
+agree, at the price of anchor error). Here the rows between a static body
+(the ground) and bodies held by tree joints are solved in contact space, with
+the joints in the metric:
+
+* Unit impulse on contact column i (point p, direction d ∈ {n, t1, t2}, on
+  body b with lever arm r): J_i = [d, r × d] on b. Unconstrained response
+  U_i = M⁻¹ J_iᵀ (the tree's metric M: masses, world inertias).
+* The tree joints (rows J_t, K = J_t M⁻¹ J_tᵀ, factored by the tree solver)
+  answer with λ = -K⁻¹ J_t U_i, so the constrained response is
+  Z_i = U_i - M⁻¹ J_tᵀ K⁻¹ J_t U_i (the Schur complement of the joints'
+  KKT system: Baraff 1996, "Linear-time dynamics using Lagrange
+  multipliers", section 7; Featherstone 2008, ch. 7's articulated inertia
+  seen at a contact point).
+* The Delassus matrix A = J_c Z (columns x columns per world) couples every
+  point of every row on the articulation: projected Gauss-Seidel on it
+  (one sweep per solve, the normal columns then the friction pairs, the same
+  soft normal rows and Coulomb disc as ``contact_solver``), then the
+  velocities change by Z Δλ at once: the joints stay satisfied at velocity
+  level, with no joint error for the joint solve to hand back.
+
+Z and A are computed once per step at the step's start positions, as the
+contact rows keep their lever arms for the step. Memory per world: columns
+(12 per row: 4 points x 3 directions) x (6 x bodies + 7 x columns) floats.
+
+Restitution: a point's closing speed just before it first takes load in the
+step is recorded as in ``contact_solver``, and its bounce (``bounce``) raises
+its separating speed to the target in the same contact space. Not covered
+(these rows keep the body-by-body Gauss-Seidel): rows between two moving
+bodies, articulations closed by loops. Joint limits act after the tree solve (or in it, with
+``joint_limits_in_tree``) and are not in Z.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .contact_solver import _coulomb_scale, _separation
+from .math3d import cross, mat_vec
+
+
+class ArticulatedContacts:
+    """The rows of a step's ``ContactRows`` ``cr`` between a static body and a
+    jointed body (without restitution), in contact space; ``js``: the
+    model's ``JointSet`` after its ``begin_step``."""
+
+    def __init__(self, model, state, cr, js):
+        tree = js.tree
+        rows = np.flatnonzero(cr.jointed & ~cr.dyn_a & cr.dyn_b)
+        self.rows = rows
+        self.empty = rows.size == 0 or tree is None or js.loop_rows is not None
+        if self.empty:
+            return
+        W, N, P = state.num_worlds, model.num_bodies, cr.valid.shape[1]
+        # Each row's slot among its world's rows; column (slot, point, direction).
+        w = cr.w[rows]
+        order = np.argsort(w, kind="stable")
+        ws = w[order]
+        slot = np.empty(rows.size, dtype=np.int64)
+        slot[order] = np.arange(rows.size) - np.searchsorted(ws, ws, side="left")
+        self.W, self.N, self.P, self.slots = W, N, P, int(slot.max() + 1)
+        C = self.slots * P * 3
+        self.col = slot[:, None, None] * (P * 3) + np.arange(P)[None, :, None] * 3 + np.arange(3)  # (rows, P, 3)
+        self.wi = np.broadcast_to(w[:, None], (rows.size, P))
+        valid = cr.valid[rows]
+        d = np.broadcast_to(np.stack((cr.n[rows], cr.t1[rows], cr.t2[rows]), axis=1)[:, None], (rows.size, P, 3, 3))
+        J = np.concatenate((d, cross(np.broadcast_to(cr.rb[rows][:, :, None], d.shape), d)), axis=-1)
+        J = J * valid[..., None, None]  # (rows, P, direction, 6)
+        wi3 = np.broadcast_to(w[:, None, None], self.col.shape)
+        bi3 = np.broadcast_to(cr.b[rows][:, None, None], self.col.shape)
+        # Each column acts on one body: its 6-vector J (W, C, 6) and body (W, C) (padding: body 0, J = 0).
+        self.J = np.zeros((W, C, 6))
+        self.J[wi3, self.col] = J
+        self.body = np.zeros((W, C), dtype=np.int64)
+        self.body[wi3, self.col] = bi3
+        self.world = np.arange(W)[:, None]
+        U = np.zeros((W, N, 6, C))
+        U[wi3, bi3, :, self.col] = np.concatenate(
+            (J[..., :3] * model.inv_mass[bi3][..., None], mat_vec(tree.iinv[wi3, bi3], J[..., 3:])), axis=-1)
+        # Z = U - M⁻¹ J_tᵀ K⁻¹ J_t U, through the tree's factors at these positions.
+        a, b, _, _, _, _, _, Ja, Jb, mask = tree.blocks(js, state, tree)
+        B = (np.matmul(Ja, U[:, a]) + np.matmul(Jb, U[:, b])) * mask[..., None]
+        X = tree._substitute_columns(tree._factor(Ja, Jb, mask), B)
+        F = tree.body_columns(Ja, Jb, X)
+        U[..., :3, :] -= F[..., :3, :] * model.inv_mass[:, None, None]
+        U[..., 3:, :] -= np.matmul(tree.iinv, F[..., 3:, :])
+        self.Z = U.reshape(W, N * 6, C)
+        self.A = np.einsum("wck,wckj->wcj", self.J, U[self.world, self.body])  # J_c Z (W, C, C)
+        diag = np.einsum("wcc->wc", self.A)
+        self.m = np.where(diag > 0, 1.0 / np.where(diag > 0, diag, 1.0), 0.0)  # effective masses
+        self.valid = np.zeros((W, C), dtype=bool)
+        self.valid[wi3, self.col] = np.broadcast_to(valid[..., None], self.col.shape)
+        self.mu = np.zeros((W, C))
+        self.mu[self.wi, self.col[..., 0]] = cr.mu[rows]
+        self.normals = np.flatnonzero(self.valid[:, ::3].any(axis=0)) * 3  # normal columns valid in some world
+
+    # ------------------------------------------------------------------ impulses
+    def _gather(self, cr):
+        """The rows' accumulated impulses as (W, columns)."""
+        lam = np.zeros((self.W, self.Z.shape[-1]))
+        for k, src in enumerate((cr.lam_n, cr.lam_t1, cr.lam_t2)):
+            lam[self.wi, self.col[..., k]] = src[self.rows]
+        return lam
+
+    def _scatter(self, cr, lam):
+        for k, dst in enumerate((cr.lam_n, cr.lam_t1, cr.lam_t2)):
+            dst[self.rows] = lam[self.wi, self.col[..., k]]
+        cr.max_lam_n[self.rows] = np.maximum(cr.max_lam_n[self.rows], cr.lam_n[self.rows])
+
+    def _normal_columns(self, values):
+        """Per-point values (rows, P) of the rows as (W, columns) at the normal columns."""
+        out = np.zeros(self.valid.shape)
+        out[self.wi, self.col[..., 0]] = values
+        return out
+
+    def _velocities(self, state):
+        """Column velocities J_c v (W, columns)."""
+        vel = np.concatenate((state.velocity, state.angular_velocity), axis=-1)[self.world, self.body]
+        return np.einsum("wck,wck->wc", self.J, vel)
+
+    def _apply(self, state, lam):
+        """Velocities += Z λ (every body of each articulation)."""
+        dv = np.matmul(self.Z, lam[..., None]).reshape(self.W, self.N, 6)
+        state.velocity += dv[..., :3]
+        state.angular_velocity += dv[..., 3:]
+
+    def warm_start(self, state, cr):
+        lam = self._gather(cr)
+        if lam.any():
+            self._apply(state, lam)
+
+    # --------------------------------------------------------------------- solve
+    def solve(self, state, cr, h, use_bias):
+        """One projected Gauss-Seidel sweep over the columns (``contact_solver``'s
+        per-point rules with the effective masses 1 / A_ii), then Z Δλ."""
+        sep = self._normal_columns(_separation(state, cr._block(self.rows)))
+        open_ = sep > 0
+        if use_bias and not cr.thesis:
+            soft = cr.soft
+            bias = np.where(open_, sep / h, np.maximum(soft.bias_rate * np.minimum(sep + cr.slop, 0.0),
+                                                       -cr.max_push_out))
+            gain = -self.m * np.where(open_, 1.0, soft.mass_scale)
+            isc = np.where(open_, 0.0, soft.impulse_scale)
+        else:
+            bias, gain, isc = np.where(open_, sep / h, 0.0), -self.m, None
+        u = self._velocities(state)
+        lam = self._gather(cr)
+        start = lam.copy()
+        A, valid = self.A, self.valid
+        # For restitution: each point's closing speed and gap just before it first takes load.
+        loaded = self._normal_columns(cr.max_lam_n[self.rows]) > 0
+        v_close = self._normal_columns(cr.vn_close[self.rows])
+        s_close = self._normal_columns(cr.s_close[self.rows])
+        for i in self.normals:
+            d = gain[:, i] * (u[:, i] + bias[:, i])
+            if isc is not None:
+                d = d - isc[:, i] * lam[:, i]
+            new = np.where(valid[:, i], np.maximum(lam[:, i] + d, 0.0), 0.0)
+            first = ~loaded[:, i] & (new > 0)
+            v_close[:, i] = np.where(first, u[:, i], v_close[:, i])
+            s_close[:, i] = np.where(first, sep[:, i], s_close[:, i])
+            loaded[:, i] |= new > 0
+            u += A[:, :, i] * (new - lam[:, i])[:, None]
+            lam[:, i] = new
+        cr.vn_close[self.rows] = v_close[self.wi, self.col[..., 0]]
+        cr.s_close[self.rows] = s_close[self.wi, self.col[..., 0]]
+        for i in self.normals:
+            t1 = lam[:, i + 1] - self.m[:, i + 1] * u[:, i + 1]
+            t2 = lam[:, i + 2] - self.m[:, i + 2] * u[:, i + 2]
+            scale = np.where(valid[:, i], _coulomb_scale(t1, t2, self.mu[:, i] * lam[:, i]), 0.0)
+            t1, t2 = t1 * scale, t2 * scale
+            u += A[:, :, i + 1] * (t1 - lam[:, i + 1])[:, None] + A[:, :, i + 2] * (t2 - lam[:, i + 2])[:, None]
+            lam[:, i + 1], lam[:, i + 2] = t1, t2
+        self._apply(state, lam - start)
+        self._scatter(cr, lam)
+
+    def bounce(self, state, cr, bounce, target):
+        """Restitution of the rows' points marked in ``bounce`` (rows of the
+        step, P): their impulses grow (λ_n ≥ 0) until each one's separating
+        speed is ``target`` (m/s), in one sweep with the coupling A."""
+        on = self._normal_columns(bounce[self.rows]) > 0
+        if not on.any():
+            return
+        goal = self._normal_columns(target[self.rows])
+        u = self._velocities(state)
+        lam = self._gather(cr)
+        start = lam.copy()
+        for i in np.flatnonzero(on.any(axis=0)):
+            new = np.where(on[:, i], np.maximum(lam[:, i] - self.m[:, i] * (u[:, i] - goal[:, i]), 0.0), lam[:, i])
+            u += self.A[:, :, i] * (new - lam[:, i])[:, None]
+            lam[:, i] = new
+        self._apply(state, lam - start)
+        self._scatter(cr, lam)
