@@ -234,9 +234,10 @@ class Settings:
         still by 3 s), and every ragdoll hard case held 0.2 mm (quick runs;
         2-9 cm without). At the defaults (soft joints) the drops rest
         better (0.017 against 0.042 m/s) but land deeper (6.4 against
-        3.2 cm). Cost, W = 1 ragdoll under random maximum torques: 1.13x
-        the default step (rigid joints: 1.4x); W = 64: 2.5x (1.7x), its
-        per-step matrices growing with the contact rows per world. README:
+        3.2 cm). Cost (``benchmarks.throughput``, ragdoll on the ground under
+        random maximum torques): with the default joints about the same at
+        W = 1 and 1.1x at W = 64, with rigid joints 2.1x and 1.7x; its
+        per-step matrices grow with the contact rows per world. README:
         "Articulated contacts".
     max_push_out: m/s, the largest speed the position bias may add.
     restitution_threshold: m/s, closing speeds below it do not bounce.

@@ -126,7 +126,7 @@ SLOW_XFAIL = {
     "stack_20": "measured (full run): not at rest: 0.11 m/s (10 km out 0.12) > 0.05 m/s between 2 and 10 s (0.010 m/s over "
                 "2-3 s): the column buckles slowly (at 60 Hz a contact's rocking stiffness, about 4700 "
                 "N·m/rad, is below the about 5400 a column of 20 such boxes needs; 8 substeps at 120 Hz "
-                "hold it)",
+                "hold it; so do free-body contacts at 72 Hz, which set the pyramid and the sandwich rocking)",
     "ragdoll_pile_10": "measured (quick run): anchor error 2.0 cm > 1 cm, penetration 5.5 cm > 5 cm",
     "sphere_grid": "measured (full run, python -m benchmarks.stability --case sphere_grid sphere_grid_far): "
                    "anchor error 2.23 cm > 1 cm (10 km out 1.50 cm; a spike whose size moves with rounding; "
