@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
+import argparse
+import contextlib
 import json
 import os
 import platform
 import re
+import signal
 import sys
+import threading
 from pathlib import Path
 
 CHECKPOINT_DIR = "checkpoints"
@@ -24,6 +28,37 @@ ACTIVATIONS = {"tanh": "Tanh", "relu": "ReLU", "elu": "ELU", "leaky_relu": "Leak
 
 class TrainingError(ValueError):
     """A user-facing error of the training CLIs (bad id, missing run, corrupted file)."""
+
+
+class TrainingInterrupted(KeyboardInterrupt):
+    """Training stopped by Ctrl-C after the run was saved (checkpoint, final
+    model, summary); the message says how to continue it, ``summary`` is the
+    run's summary. Still a KeyboardInterrupt for callers of ``train()``; the
+    CLIs print the message and exit with status 130."""
+
+    def __init__(self, message: str, summary: dict | None = None):
+        super().__init__(message)
+        self.summary = summary
+
+
+def positive_int(text: str) -> int:
+    """argparse type: a whole number >= 1."""
+    return _whole_number(text, 1)
+
+
+def non_negative_int(text: str) -> int:
+    """argparse type: a whole number >= 0."""
+    return _whole_number(text, 0)
+
+
+def _whole_number(text: str, minimum: int) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number >= {minimum}, got {text!r}") from None
+    if value < minimum:
+        raise argparse.ArgumentTypeError(f"must be >= {minimum}, got {value}")
+    return value
 
 
 def known_env_ids() -> tuple[str, ...]:
@@ -117,13 +152,22 @@ def checkpoints(run_dir) -> list[tuple[int, Path, Path]]:
     return sorted(out)
 
 
-def last_checkpoint(run_dir) -> tuple[Path, Path]:
-    """(model, vecnormalize) of the latest checkpoint, for --resume."""
+def last_checkpoint(run_dir) -> tuple[int, Path, Path]:
+    """(timesteps, model, vecnormalize) of the latest checkpoint, for --resume."""
     ckpts = checkpoints(run_dir)
     if not ckpts:
-        raise TrainingError(f"run directory {str(run_dir)!r} has no checkpoint in {CHECKPOINT_DIR}/ to resume from")
-    _, model, vecnorm = ckpts[-1]
-    return model, vecnorm
+        raise TrainingError(f"run directory {str(run_dir)!r} has no checkpoint in {CHECKPOINT_DIR}/ to resume from; "
+                            "a run that stopped before its first checkpoint starts afresh with "
+                            f"python -m training.train ENV_ID --out {run_dir}")
+    return ckpts[-1]
+
+
+def saved_models(run_dir) -> list[Path]:
+    """The models a run directory holds (checkpoints, final and best model):
+    what a fresh start must not overwrite. A directory with a config.json but
+    none of these is a run that stopped before its first checkpoint."""
+    run = Path(run_dir)
+    return [m for _, m, _ in checkpoints(run)] + [run / n for n in (FINAL_MODEL, BEST_MODEL) if (run / n).is_file()]
 
 
 def model_for_evaluation(run_dir) -> tuple[str, Path, Path | None]:
@@ -194,6 +238,21 @@ def versions() -> dict:
     }
 
 
+@contextlib.contextmanager
+def sigint_ignored():
+    """SIGINT (Ctrl-C) ignored inside the block, so that a second Ctrl-C does
+    not cut a checkpoint or summary being written in half (main thread only;
+    elsewhere a no-op)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, signal.default_int_handler if previous is None else previous)
+
+
 def write_json(path, data) -> None:
     tmp = Path(str(path) + ".tmp")
     tmp.write_text(json.dumps(data, indent=2, default=_jsonable) + "\n")
@@ -218,8 +277,16 @@ def _jsonable(obj):
 
 
 def run_cli(main_fn, argv=None):
-    """Run ``main_fn(argv)``; a TrainingError exits with its message (SystemExit)."""
+    """Run ``main_fn(argv)``; a TrainingError exits with its message (SystemExit,
+    status 1), Ctrl-C (KeyboardInterrupt) with a one-line message and status
+    130, without a traceback."""
     try:
         return main_fn(argv)
     except TrainingError as exc:
         raise SystemExit(f"error: {exc}") from None
+    except TrainingInterrupted as exc:
+        print(f"interrupted: {exc}", file=sys.stderr, flush=True)
+        raise SystemExit(130) from None
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr, flush=True)
+        raise SystemExit(130) from None

@@ -17,9 +17,11 @@ Each entry has:
   added (times s) to a controller of ``ragdoll_env.baselines`` and the sum
   clipped (:mod:`ragdoll_env.residual`); absent or null: the policy acts
   alone;
-* ``eval``: ``freq`` (timesteps between evaluations), ``episodes``,
-  ``num_envs`` of the separate evaluation env;
-* ``checkpoint_freq``: timesteps between checkpoints;
+* ``eval``: ``freq`` (timesteps between evaluations; 0: none, so no
+  ``best_model.zip``), ``episodes``, ``num_envs`` of the separate
+  evaluation env;
+* ``checkpoint_freq``: timesteps between checkpoints (0: none but the one
+  saved at the end of each session, or at Ctrl-C);
 * ``policy_warmup_steps`` (optional, default 0): for the rollouts collected
   in the first that many timesteps the PPO updates train the critic only
   (the actor's parameters frozen), so the first policy updates follow
@@ -42,7 +44,9 @@ Starting points (RL Baselines3 Zoo, ``hyperparams/ppo.yml``):
   fell in 3, 1 and 0 of 40 episodes, the PD alone in 0 of the same 40).
 
 ``--config PATH`` (JSON or YAML) is merged over the entry, key by key (nested
-dicts merged recursively), e.g. ``{"ppo": {"learning_rate": 3e-4}}``.
+dicts merged recursively), e.g. ``{"ppo": {"learning_rate": 3e-4}}``; a key
+that is none of the above (at the top level or in ``eval``) is an error
+(:func:`check_override`).
 """
 
 from __future__ import annotations
@@ -119,6 +123,37 @@ CONFIGS = {
         "checkpoint_freq": 250_000,
     },
 }
+
+
+#: the keys an entry (and the top level of a --config file) may have
+KEYS = ("num_envs", "timesteps", "ppo", "normalize", "env_kwargs", "train_env_kwargs", "residual", "eval",
+        "checkpoint_freq", "policy_warmup_steps")
+#: the keys of ``eval``
+EVAL_KEYS = ("freq", "episodes", "num_envs")
+#: entries whose value is a mapping: True where null is allowed as well
+MAPPINGS = {"ppo": False, "eval": False, "normalize": True, "env_kwargs": True, "train_env_kwargs": True,
+            "residual": True}
+
+
+def check_override(override: dict) -> None:
+    """ValueError naming an unknown key of a --config mapping (at its top level
+    or in ``eval``) and the valid ones, or an entry that must be a mapping and
+    is not. The keys within ``ppo``, ``normalize``, ``env_kwargs`` and
+    ``residual`` are checked where they are used (PPO, VecNormalize, the
+    environment, :func:`ragdoll_env.residual.check_residual`)."""
+    unknown = [k for k in override if k not in KEYS]
+    if unknown:
+        ppo_keys = {k for entry in CONFIGS.values() for k in entry["ppo"]}
+        hint = " (PPO settings go under \"ppo\")" if ppo_keys & set(unknown) else ""
+        raise ValueError(f"unknown key{'s' if len(unknown) > 1 else ''} {', '.join(map(repr, unknown))}{hint}; "
+                         f"the top-level keys are {', '.join(KEYS)}")
+    for key, nullable in MAPPINGS.items():
+        if key in override and not (isinstance(override[key], dict) or (nullable and override[key] is None)):
+            raise ValueError(f"{key!r} must be a mapping{' or null' if nullable else ''}, got {override[key]!r}")
+    unknown = [k for k in override.get("eval") or {} if k not in EVAL_KEYS]
+    if unknown:
+        raise ValueError(f"unknown key{'s' if len(unknown) > 1 else ''} {', '.join(map(repr, unknown))} in "
+                         f"\"eval\"; its keys are {', '.join(EVAL_KEYS)}")
 
 
 def merge(base: dict, override: dict) -> dict:

@@ -32,25 +32,27 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m training.evaluate", description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("run_dir", metavar="RUN_DIR", help="a run directory written by python -m training.train")
-    p.add_argument("--episodes", type=int, default=20, help="episodes per controller (default 20)")
+    p.add_argument("--episodes", type=C.positive_int, default=20, help="episodes per controller (default 20)")
     p.add_argument("--json", metavar="PATH", default=None, help="write the results as JSON here")
     p.add_argument("--video", metavar="DIR", default=None,
                    help="record the agent with gymnasium's RecordVideo (render_mode='rgb_array') into DIR")
-    p.add_argument("--video-episodes", type=int, default=1, help="episodes to record with --video (default 1)")
+    p.add_argument("--video-episodes", type=C.positive_int, default=1,
+                   help="episodes to record with --video (default 1)")
     p.add_argument("--stochastic", dest="deterministic", action="store_false",
                    help="sample actions from the policy (default: its mean action, as SB3's evaluate_policy and "
                         "the training run's evaluations)")
     p.add_argument("--deterministic", dest="deterministic", action="store_true",
                    help="act with the policy's mean action (the default)")
     p.add_argument("--seed", type=int, default=12345, help="seed of the evaluation worlds (default 12345)")
-    p.add_argument("--num-envs", type=int, default=8, help="worlds stepped together (default 8)")
+    p.add_argument("--num-envs", type=C.positive_int, default=8,
+                   help="worlds stepped together, at most --episodes (default 8)")
     p.add_argument("--push-strength", type=float, nargs=2, metavar=("LO", "HI"), default=None,
                    help="push impulse range in N·s (Balance; 0 0 disables pushes)")
     p.add_argument("--push-interval", type=float, nargs=2, metavar=("LO", "HI"), default=None,
                    help="seconds between pushes")
-    p.add_argument("--max-episode-steps", type=int, default=None, help="override the episode length")
+    p.add_argument("--max-episode-steps", type=C.positive_int, default=None, help="override the episode length")
     p.add_argument("--no-baselines", action="store_true", help="evaluate the agent only")
-    p.add_argument("--threads", type=int, default=1, help="torch CPU threads (default 1)")
+    p.add_argument("--threads", type=C.positive_int, default=1, help="torch CPU threads (default 1)")
     return p
 
 
@@ -203,9 +205,9 @@ def evaluate(args) -> dict:
 
     from ragdoll_env.baselines import make_baseline
 
-    torch.set_num_threads(max(int(args.threads), 1))
-    if args.episodes < 1:
-        raise C.TrainingError("--episodes must be >= 1")
+    torch.set_num_threads(int(args.threads))
+    if args.episodes < 1 or args.num_envs < 1:  # argparse checks both; this is for callers of the function
+        raise C.TrainingError("--episodes and --num-envs must be >= 1")
     t0 = time.time()
     run = C.require_run_dir(args.run_dir)
     saved = C.read_run_config(run)
@@ -217,7 +219,7 @@ def evaluate(args) -> dict:
         env_kwargs["push_interval"] = tuple(args.push_interval)
     if args.max_episode_steps is not None:
         env_kwargs["max_episode_steps"] = args.max_episode_steps
-    num_envs = max(1, min(args.num_envs, args.episodes))
+    num_envs = min(args.num_envs, args.episodes)  # no idle worlds
 
     residual = saved["config"].get("residual")
     loaded = load_agent(run, saved, num_envs, args.seed, env_kwargs)

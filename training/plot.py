@@ -23,7 +23,8 @@ def build_parser():
     p = argparse.ArgumentParser(prog="python -m training.plot", description=__doc__.split("\n\n")[0])
     p.add_argument("run_dir", metavar="RUN_DIR")
     p.add_argument("--out", metavar="PNG", default=None, help="output file (default RUN_DIR/learning_curve.png)")
-    p.add_argument("--window", type=int, default=20, help="moving-average window of training episodes")
+    p.add_argument("--window", type=C.positive_int, default=20,
+                   help="moving-average window of training episodes (default 20)")
     return p
 
 

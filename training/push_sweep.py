@@ -33,18 +33,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("run_dir", metavar="RUN_DIR", help="a Ragdoll/Balance-v0 run written by python -m training.train")
     p.add_argument("--strengths", type=float, nargs="+", default=[0.0, 10.0, 20.0, 30.0, 40.0],
                    help="push impulses to sweep, N·s (default 0 10 20 30 40)")
-    p.add_argument("--episodes", type=int, default=20, help="episodes per strength and controller (default 20)")
+    p.add_argument("--episodes", type=C.positive_int, default=20,
+                   help="episodes per strength and controller (default 20)")
     p.add_argument("--push-interval", type=float, nargs=2, metavar=("LO", "HI"), default=None,
                    help="seconds between pushes (default: the run's)")
     p.add_argument("--baselines", nargs="*", default=list(BASELINES), choices=BASELINES,
                    help="baselines beside the agent (default: standing_pd zero)")
     p.add_argument("--seed", type=int, default=12345, help="seed of the evaluation worlds (default 12345)")
-    p.add_argument("--num-envs", type=int, default=10, help="worlds stepped together (default 10)")
+    p.add_argument("--num-envs", type=C.positive_int, default=10,
+                   help="worlds stepped together, at most --episodes (default 10)")
     p.add_argument("--stochastic", dest="deterministic", action="store_false",
                    help="sample the policy's actions (default: its mean action)")
     p.add_argument("--json", metavar="PATH", default=None, help="write the rows as JSON here")
     p.add_argument("--plot", metavar="PNG", default=None, help="plot fall rate against strength (matplotlib)")
-    p.add_argument("--threads", type=int, default=1, help="torch CPU threads (default 1)")
+    p.add_argument("--threads", type=C.positive_int, default=1, help="torch CPU threads (default 1)")
     return p
 
 
@@ -53,9 +55,9 @@ def sweep(args) -> dict:
 
     from ragdoll_env.baselines import make_baseline
 
-    torch.set_num_threads(max(int(args.threads), 1))
-    if args.episodes < 1:
-        raise C.TrainingError("--episodes must be >= 1")
+    torch.set_num_threads(int(args.threads))
+    if args.episodes < 1 or args.num_envs < 1:  # argparse checks both; this is for callers of the function
+        raise C.TrainingError("--episodes and --num-envs must be >= 1")
     if any(s < 0 for s in args.strengths):
         raise C.TrainingError(f"--strengths must be >= 0 N·s, got {args.strengths}")
     t0 = time.time()
@@ -67,7 +69,7 @@ def sweep(args) -> dict:
     base_kwargs = dict(saved["config"].get("env_kwargs") or {})
     if args.push_interval is not None:
         base_kwargs["push_interval"] = tuple(args.push_interval)
-    num_envs = max(1, min(args.num_envs, args.episodes))
+    num_envs = min(args.num_envs, args.episodes)  # no idle worlds
     strengths = list(dict.fromkeys(args.strengths))
     rows, model_label, model_steps, episode_s = [], None, None, None
     for s in strengths:

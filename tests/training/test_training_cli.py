@@ -171,7 +171,7 @@ def test_train_env_kwargs_change_the_training_env_only(tmp_path):
     evaluation env keeps ``env_kwargs``."""
     cfg = merge(get_config(ENV), {"env_kwargs": {"max_episode_steps": 50},
                                   "train_env_kwargs": {"max_episode_steps": 20}})
-    venv, eval_env, _ = train._make_envs(ENV, cfg, 2, 0, tmp_path, "train.monitor.csv")
+    venv, eval_env, _ = train._make_envs(ENV, cfg, 2, 0)
     try:
         assert venv.get_attr("max_episode_steps", [0]) == [20]
         assert eval_env.get_attr("max_episode_steps", [0]) == [50]
