@@ -37,6 +37,21 @@ def test_make_with_module_prefix_in_a_fresh_interpreter():
     assert out.stdout.strip() == "(81,)"
 
 
+def test_sb3_subproc_vec_env_with_module_prefix():
+    """The README's advice: SB3's forkserver workers find the id with the prefix."""
+    pytest.importorskip("stable_baselines3")
+    from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.vec_env import SubprocVecEnv
+
+    venv = make_vec_env("ragdoll_env:Ragdoll/InvertedPendulum-v0", n_envs=2, seed=0, vec_env_cls=SubprocVecEnv)
+    try:
+        obs = venv.reset()
+        obs, reward, done, info = venv.step(np.zeros((2, 1), dtype=np.float32))
+        assert obs.shape == (2, 2) and np.isfinite(obs).all() and reward.shape == (2,)
+    finally:
+        venv.close()
+
+
 @pytest.mark.parametrize("env_id", ALL_IDS)
 def test_gymnasium_env_checker(env_id):
     env = make(env_id)
