@@ -34,7 +34,7 @@ import time
 
 import numpy as np
 
-from .common import machine_note, print_table, write_json
+from .common import machine_note, nonnegative_int, positive_int, print_table, write_json
 
 RAGDOLL_ID = "Ragdoll/InvertedPendulum-v0"
 MUJOCO_ID = "InvertedPendulum-v5"
@@ -129,14 +129,26 @@ def train_until_solved(engine: str, seed: int, max_steps: int, eval_freq: int, e
             **result, "train_wall_s": train_wall, "env_steps": int(model.num_timesteps)}
 
 
+def _fraction(text: str) -> float:
+    """argparse type: a number in (0, 1]."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a number in (0, 1], got {text!r}") from None
+    if not 0 < value <= 1:
+        raise argparse.ArgumentTypeError(f"must be a number in (0, 1], got {text!r}")
+    return value
+
+
 def parse_args(argv=None):
     p = argparse.ArgumentParser(prog="python -m benchmarks.ppo_pendulum", description=__doc__.split("\n")[0])
-    p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+    p.add_argument("--seeds", type=nonnegative_int, nargs="+", default=[0, 1, 2])
     p.add_argument("--engines", nargs="+", choices=("ragdoll", "mujoco"), default=["ragdoll", "mujoco"])
-    p.add_argument("--max-steps", type=int, default=100_000, help="environment steps before giving up")
-    p.add_argument("--eval-freq", type=int, default=2_048, help="environment steps between evaluations")
-    p.add_argument("--eval-episodes", type=int, default=10)
-    p.add_argument("--threshold", type=float, default=0.95, help="fraction of the maximum return that is solved")
+    p.add_argument("--max-steps", type=positive_int, default=100_000, help="environment steps before giving up")
+    p.add_argument("--eval-freq", type=positive_int, default=2_048, help="environment steps between evaluations")
+    p.add_argument("--eval-episodes", type=positive_int, default=10)
+    p.add_argument("--threshold", type=_fraction, default=0.95,
+                   help="fraction of the maximum return that is solved, in (0, 1]")
     p.add_argument("--json", metavar="PATH")
     return p.parse_args(argv)
 

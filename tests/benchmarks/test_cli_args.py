@@ -123,6 +123,17 @@ def test_effects_bad_numbers_are_usage_errors(capsys, argv):
     assert "argument " + next(a for a in reversed(argv) if a.startswith("--")) in err
 
 
+@pytest.mark.parametrize("argv", [
+    ["--max-steps", "0"], ["--eval-freq", "-5"], ["--eval-episodes", "0"], ["--seeds", "0", "-1"],
+    ["--threshold", "0"], ["--threshold", "1.5"], ["--threshold", "nan"],
+])
+def test_ppo_pendulum_bad_numbers_are_usage_errors(capsys, argv):
+    from benchmarks import ppo_pendulum
+
+    err = usage_error(capsys, ppo_pendulum.parse_args, argv)
+    assert "argument " + next(a for a in reversed(argv) if a.startswith("--")) in err
+
+
 # --------------------------------------------------------------------- README
 def readme_commands():
     """(module, argv) of every ``python -m benchmarks.NAME ...`` line in the README's code blocks."""
