@@ -105,7 +105,8 @@ CONFIGS = {
             # training return stayed flat over 800k steps, its evaluations (16 episodes)
             # between 0 and 38% falls where the PD falls in 5-12%: no better than the PD.
             # Neither were harder training pushes (10-30 N·s every 1.5-3 s, train_env_kwargs),
-            # a legs-only residual at 0.3, nor gSDE exploration (44% falls at 300k): README.
+            # a legs-only residual at 0.3, nor gSDE exploration (44% falls at 300k), nor a residual
+            # whose reach grew with the capture point to 0.5 (3-5 of 16 falls at 200k): README.
             "learning_rate": 3e-5,
             "target_kl": 0.01,
             "clip_range": 0.2,
