@@ -88,8 +88,10 @@ class Settings:
         stability`` chain_loop, a 20 kg ball on a slack chain pinned at both
         ends: 3.0 mm against 1.1 mm over 10 s; the grid below 29 mm against
         12 mm). Measured over 10 s: the
-        10x10 grid of ball joints pinned at two corners opens by 12.4 mm
-        exact against 39.8 mm (10 km out 12.4 mm), for about 2.5 times the
+        10x10 grid of ball joints pinned at two corners opened by 12.4 mm
+        exact against 39.8 mm (10 km out 12.4 mm; 22.3 mm since later
+        factorisation changes, a spike at 1.9 s whose size moves with
+        rounding: README hard cases), for about 2.5 times the
         step cost (one dense solve of 3 rows per ball-joint loop per sweep);
         chain_loop 1.1 mm against 10.8 mm. Its temporaries grow with bodies x
         loop rows, about 11 MB per world for that grid (nothing for a scene
@@ -119,7 +121,7 @@ class Settings:
     joint_limits_in_tree: with the tree solver and rigid limits (limit_hertz
         inf), solve the twist and swing limit rows inside the tree solve (one
         more row in each joint's free angular slots) with an active set, instead
-        of Gauss-Seidel rows before it. Off by default: single limited joints
+        of Gauss-Seidel rows after it. Off by default: single limited joints
         improve (ball into its limits at 50 N·m: 1.1° vs 2.2° over the limit;
         rigid joints 0.14°), and with rigid joints at 8 substeps the humanoid
         under bang-bang maximum torques keeps its limits within 1.5-2.4° (GS
@@ -166,7 +168,7 @@ class Settings:
         before to 1e-8 m, for about 8% of that step). Default 4 passes with
         a 4 cm slop, a safety net for extremes:
         the ragdoll hitting the ground at 100 m/s keeps its joints within
-        4.2 cm (0.51 m without; penetration after impact 3.1 cm against
+        4.3 cm (0.51 m without; penetration after impact 3.1 cm against
         0.9 cm), ragdolls dropped from 0.5-1.5 m open by 3.8-4.0 cm instead
         of 5.8-6.5 cm (feet 2.7-2.9 cm deep, against 2.3-2.4) and rest as
         before, and

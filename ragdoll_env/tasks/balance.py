@@ -48,8 +48,9 @@ MuJoCo Humanoid-v5's 67 Hz). A torque held for a whole step is an explicit
 PD on the light bones (a 1 kg foot, an 8 kg pelvis), which oscillates once
 kd·Δt/I or kp·Δt²/I is too large: at 30 Hz the standing PD could not be
 stiff enough, and under the default pushes it fell in 11 of 20 episodes
-(and in 9 at 60 Hz with the same gains); tuned for 60 Hz it falls in 6 of 120
-in push trials and in 12 of 100 in a 100-episode ``training.evaluate``.
+(and in 9 at 60 Hz with the same gains); tuned for 60 Hz it fell in 6 of 120
+in push trials (9 of 120 with the current engine: 2, 4 and 3 of 40) and in 12
+of 100 in a 100-episode ``training.evaluate``.
 Reset: every joint angle component + uniform ±reset_noise_scale (0.02 rad,
 clipped to the limits), soles lowered onto the ground, whole-body horizontal
 velocity uniform ±reset_noise_scale m/s.
