@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import argparse
 import copy
+import math
 import statistics
 import time
 
@@ -130,13 +131,13 @@ def train_until_solved(engine: str, seed: int, max_steps: int, eval_freq: int, e
 
 
 def _fraction(text: str) -> float:
-    """argparse type: a number in (0, 1]."""
+    """argparse type: a finite number >= 0 (above 1: never solved, the run goes to --max-steps)."""
     try:
         value = float(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"must be a number in (0, 1], got {text!r}") from None
-    if not 0 < value <= 1:
-        raise argparse.ArgumentTypeError(f"must be a number in (0, 1], got {text!r}")
+        raise argparse.ArgumentTypeError(f"must be a finite number >= 0, got {text!r}") from None
+    if not (math.isfinite(value) and value >= 0):
+        raise argparse.ArgumentTypeError(f"must be a finite number >= 0, got {text!r}")
     return value
 
 
@@ -148,7 +149,7 @@ def parse_args(argv=None):
     p.add_argument("--eval-freq", type=positive_int, default=2_048, help="environment steps between evaluations")
     p.add_argument("--eval-episodes", type=positive_int, default=10)
     p.add_argument("--threshold", type=_fraction, default=0.95,
-                   help="fraction of the maximum return that is solved, in (0, 1]")
+                   help="fraction of the maximum return that counts as solved (>= 0; above 1 never)")
     p.add_argument("--json", metavar="PATH")
     return p.parse_args(argv)
 

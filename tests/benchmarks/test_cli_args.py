@@ -125,7 +125,7 @@ def test_effects_bad_numbers_are_usage_errors(capsys, argv):
 
 @pytest.mark.parametrize("argv", [
     ["--max-steps", "0"], ["--eval-freq", "-5"], ["--eval-episodes", "0"], ["--seeds", "0", "-1"],
-    ["--threshold", "0"], ["--threshold", "1.5"], ["--threshold", "nan"],
+    ["--threshold", "-0.5"], ["--threshold", "inf"], ["--threshold", "nan"],
 ])
 def test_ppo_pendulum_bad_numbers_are_usage_errors(capsys, argv):
     from benchmarks import ppo_pendulum
