@@ -104,6 +104,8 @@ def write_json(path: str, rows) -> None:
 
 
 # ------------------------------------------------------------ argument checks
+# (ragdoll_env.cli_args has the same integer types for the env and training CLIs;
+# importing it here would import gymnasium into the engine-only benchmarks.)
 def positive_int(text: str) -> int:
     """argparse type: an integer >= 1."""
     return _int_at_least(text, 1)

@@ -24,6 +24,7 @@ import engine
 from engine import Box
 from engine.humanoid import add_humanoid, pose, random_pose
 
+from .cli_args import int_at_least
 from .render import Renderer, frame_strip, save_png
 
 STEP_RISE, STEP_RUN, STEPS = 0.18, 0.35, 5
@@ -152,21 +153,6 @@ def write_video(frames, path: str, fps: int) -> str:
     return path
 
 
-def _int_at_least(low: int):
-    """argparse type: an integer >= ``low``."""
-
-    def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            value = None
-        if value is None or value < low:
-            raise argparse.ArgumentTypeError(f"must be an integer >= {low}, got {text!r}")
-        return value
-
-    return parse
-
-
 def _positive_seconds(text: str) -> float:
     """argparse type: a finite number > 0."""
     try:
@@ -181,16 +167,16 @@ def _positive_seconds(text: str) -> float:
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m ragdoll_env.demo", description=__doc__.split("\n\n")[0])
     p.add_argument("--out", required=True, help="output directory")
-    p.add_argument("--frames", type=_int_at_least(1), default=8, help="frames in the PNG strip (default 8)")
+    p.add_argument("--frames", type=int_at_least(1), default=8, help="frames in the PNG strip (default 8)")
     p.add_argument("--scene", choices=("stairs", "boxes"), default="stairs")
     p.add_argument("--video", action="store_true", help="also write an MP4")
     p.add_argument("--seconds", type=_positive_seconds, default=3.0, help="simulated time (default 3 s)")
-    p.add_argument("--width", type=_int_at_least(1), default=320, help="image width in pixels (default 320)")
-    p.add_argument("--height", type=_int_at_least(1), default=240, help="image height in pixels (default 240)")
-    p.add_argument("--fps", type=_int_at_least(1), default=30,
+    p.add_argument("--width", type=int_at_least(1), default=320, help="image width in pixels (default 320)")
+    p.add_argument("--height", type=int_at_least(1), default=240, help="image height in pixels (default 240)")
+    p.add_argument("--fps", type=int_at_least(1), default=30,
                    help="video frames per simulated second with --video (default 30; a whole number of 1/60 s "
                         "steps per frame, so at most 60)")
-    p.add_argument("--seed", type=_int_at_least(0), default=0, help="seed of the boxes scene (default 0)")
+    p.add_argument("--seed", type=int_at_least(0), default=0, help="seed of the boxes scene (default 0)")
     args = p.parse_args(argv)
     if os.path.exists(args.out) and not os.path.isdir(args.out):
         p.error(f"--out {args.out}: exists and is not a directory")

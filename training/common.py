@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 import json
 import os
@@ -12,6 +11,8 @@ import signal
 import sys
 import threading
 from pathlib import Path
+
+from ragdoll_env.cli_args import non_negative_int, positive_int  # noqa: F401 (argparse types of the CLIs: C.positive_int)
 
 CHECKPOINT_DIR = "checkpoints"
 CHECKPOINT_PREFIX = "ppo"
@@ -39,26 +40,6 @@ class TrainingInterrupted(KeyboardInterrupt):
     def __init__(self, message: str, summary: dict | None = None):
         super().__init__(message)
         self.summary = summary
-
-
-def positive_int(text: str) -> int:
-    """argparse type: a whole number >= 1."""
-    return _whole_number(text, 1)
-
-
-def non_negative_int(text: str) -> int:
-    """argparse type: a whole number >= 0."""
-    return _whole_number(text, 0)
-
-
-def _whole_number(text: str, minimum: int) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number >= {minimum}, got {text!r}") from None
-    if value < minimum:
-        raise argparse.ArgumentTypeError(f"must be >= {minimum}, got {value}")
-    return value
 
 
 def known_env_ids() -> tuple[str, ...]:

@@ -178,7 +178,7 @@ def test_non_positive_counts_are_argparse_errors(parser, argv, capsys):
     with pytest.raises(SystemExit) as exc:
         parser().parse_args(argv)
     assert exc.value.code == 2
-    assert f"argument {argv[-2]}: must be >=" in capsys.readouterr().err
+    assert f"argument {argv[-2]}: must be an integer >= " in capsys.readouterr().err
 
 
 def test_zero_eval_and_checkpoint_freq_turn_them_off(tmp_path, tiny):
