@@ -232,10 +232,7 @@ def _check_settings(cfg: dict) -> int:
         cfg["eval"]["num_envs"] = _whole(cfg["eval"].get("num_envs", 1), "eval.num_envs", 1)
     cfg["checkpoint_freq"] = _whole(cfg.get("checkpoint_freq"), "checkpoint_freq (timesteps, 0 for none)", 0)
     warmup = cfg.get("policy_warmup_steps")
-    warmup = 0 if warmup is None else warmup
-    if isinstance(warmup, bool) or not isinstance(warmup, int) or warmup < 0:
-        raise C.TrainingError(f"policy_warmup_steps must be a whole number of timesteps >= 0, got {warmup!r}")
-    return warmup
+    return 0 if warmup is None else _whole(warmup, "policy_warmup_steps (timesteps)", 0)
 
 
 def _save_atomic(save, path: Path) -> None:
