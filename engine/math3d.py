@@ -28,6 +28,11 @@ def dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1] + a[..., 2] * b[..., 2]
 
 
+#: Unit axes x, y, z (of the world or of a frame).
+EX = np.array([1.0, 0.0, 0.0])
+EY = np.array([0.0, 1.0, 0.0])
+EZ = np.array([0.0, 0.0, 1.0])
+
 _YZX = np.array([1, 2, 0])
 _ZXY = np.array([2, 0, 1])
 

@@ -541,7 +541,7 @@ def test_redundant_loop_rows_stay_finite():
 
 
 def test_loop_solve_in_chunks_of_worlds_gives_the_same_bits(monkeypatch):
-    import engine.joints as joints_module
+    import engine.joint_tree as joint_tree
 
     model = four_bar()
     start = model.initial_state(5)
@@ -549,7 +549,7 @@ def test_loop_solve_in_chunks_of_worlds_gives_the_same_bits(monkeypatch):
     whole, chunked = start.copy(), start.copy()
     for _ in range(10):
         e.step(model, whole)
-    monkeypatch.setattr(joints_module, "LOOP_SOLVE_BYTES", 1)  # one world per chunk
+    monkeypatch.setattr(joint_tree, "LOOP_SOLVE_BYTES", 1)  # one world per chunk
     for _ in range(10):
         e.step(model, chunked)
     assert chunked.equal(whole)
