@@ -119,9 +119,9 @@ class Settings:
         times the body's own (trace ratio); without a cap the load and the
         stiffness can feed each other under violent motor torques.
     joint_limits_in_tree: with the tree solver and rigid limits (limit_hertz
-        inf), solve the twist and swing limit rows inside the tree solve (one
-        more row in each joint's free angular slots) with an active set, instead
-        of Gauss-Seidel rows after it. Off by default: single limited joints
+        inf; with soft ones, a ValueError), solve the twist and swing limit
+        rows inside the tree solve (one more row in each joint's free angular
+        slots) with an active set, instead of Gauss-Seidel rows after it. Off by default: single limited joints
         improve (ball into its limits at 50 N·m: 1.1° vs 2.2° over the limit;
         rigid joints 0.14°), and with rigid joints at 8 substeps the humanoid
         under bang-bang maximum torques keeps its limits within 1.5-2.4° (GS
@@ -317,6 +317,10 @@ class Settings:
         for name in ("joint_hertz", "free_joint_hertz", "gs_joint_hertz", "contact_hertz", "limit_hertz"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"settings: {name} must be > 0 (inf for rigid), got {getattr(self, name)!r}")
+        if self.joint_limits_in_tree and not math.isinf(self.limit_hertz):
+            # The tree's active set solves rigid limit rows only; with soft limits the flag did nothing.
+            raise ValueError(f"settings: joint_limits_in_tree solves rigid limits (limit_hertz inf), got limit_hertz "
+                             f"{self.limit_hertz!r}; for soft limits leave joint_limits_in_tree off")
         for name in ("joint_geometric_stiffness_cap", "joint_damping_ratio", "gs_joint_damping_ratio", "contact_damping_ratio", "max_push_out",
                      "joint_max_push_out", "joint_max_angular_push_out", "joint_projection_slop",
                      "joint_projection_contact_weight",

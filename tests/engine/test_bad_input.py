@@ -252,6 +252,7 @@ def test_empty_scene():
     (dict(joint_projection_contact_weight=math.inf), "joint_projection_contact_weight must be a finite number >= 0"),
     (dict(integrator="leapfrog"), "unknown integrator 'leapfrog'"),
     (dict(contact_coloring="random"), "unknown contact_coloring 'random'"),
+    (dict(joint_limits_in_tree=True, limit_hertz=120.0), "joint_limits_in_tree solves rigid limits"),
 ])
 def test_bad_settings(scene, changes, fragment):
     model, _ = scene
