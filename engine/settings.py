@@ -119,7 +119,7 @@ class Settings:
         times the body's own (trace ratio); without a cap the load and the
         stiffness can feed each other under violent motor torques.
     joint_limits_in_tree: with the tree solver and rigid limits (limit_hertz
-        inf; with soft ones, a ValueError), solve the twist and swing limit
+        inf; otherwise a ValueError), solve the twist and swing limit
         rows inside the tree solve (one more row in each joint's free angular
         slots) with an active set, instead of Gauss-Seidel rows after it. Off by default: single limited joints
         improve (ball into its limits at 50 N·m: 1.1° vs 2.2° over the limit;
@@ -228,7 +228,8 @@ class Settings:
     articulated_contacts: solve the contacts of articulations on static
         bodies (a ragdoll on the ground) in contact space with the
         articulation's response through the joint tree
-        (``engine.articulated_contacts``) instead of one body's mass. Off by
+        (``engine.articulated_contacts``; it needs joint_solver "tree" and
+        solver "soft_step", else a ValueError) instead of one body's mass. Off by
         default. With rigid joints it keeps them closed on the ground:
         ``ragdoll_drops`` with rigid tree joints, limits in the tree and a
         0.2 mm projection slop opened 6.1 cm and still moved at 0.42 m/s
@@ -317,6 +318,12 @@ class Settings:
         for name in ("joint_hertz", "free_joint_hertz", "gs_joint_hertz", "contact_hertz", "limit_hertz"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"settings: {name} must be > 0 (inf for rigid), got {getattr(self, name)!r}")
+        tree = self.joint_solver == "tree" and self.solver == "soft_step"
+        for name in ("joint_limits_in_tree", "articulated_contacts"):
+            if getattr(self, name) and not tree:
+                # Both act through the joint tree, which only the soft-step solver's tree joint solver builds.
+                raise ValueError(f"settings: {name} needs joint_solver 'tree' and solver 'soft_step', got "
+                                 f"joint_solver {self.joint_solver!r} and solver {self.solver!r}")
         if self.joint_limits_in_tree and not math.isinf(self.limit_hertz):
             # The tree's active set solves rigid limit rows only; with soft limits the flag did nothing.
             raise ValueError(f"settings: joint_limits_in_tree solves rigid limits (limit_hertz inf), got limit_hertz "

@@ -253,6 +253,8 @@ def test_empty_scene():
     (dict(integrator="leapfrog"), "unknown integrator 'leapfrog'"),
     (dict(contact_coloring="random"), "unknown contact_coloring 'random'"),
     (dict(joint_limits_in_tree=True, limit_hertz=120.0), "joint_limits_in_tree solves rigid limits"),
+    (dict(joint_limits_in_tree=True, joint_solver="gauss_seidel"), "joint_limits_in_tree needs joint_solver 'tree'"),
+    (dict(articulated_contacts=True, solver="thesis"), "articulated_contacts needs joint_solver 'tree' and solver 'soft_step'"),
 ])
 def test_bad_settings(scene, changes, fragment):
     model, _ = scene
