@@ -24,7 +24,8 @@ Softness: the tree solve (:mod:`engine.joint_tree`) is exact, but Gauss-Seidel r
 solved after it (contacts, limits outside the tree) see one body's mass and
 fight rigid joints, so the tree joints of an articulation that such rows act
 on are soft (``joint_hertz``), as are those of an articulation with loops
-(rigid, they held their joints less well); those of an articulation
+(rigid, they held their joints less well; ``loop_joint_hertz`` when its loops
+are solved with the tree); those of an articulation
 nothing else acts on, a pendulum or a chain in the air, are rigid with
 geometric stiffness (``free_joint_hertz``, ``free_joint_geometric_stiffness``),
 chosen per world and step.
@@ -205,6 +206,12 @@ class JointSet:
             # ball on a slack chain pinned at both ends, benchmarks.stability
             # chain_loop: 3.0 mm against 1.1 mm soft over 10 s).
             gs_rows = ~in_tree | ((has_limit | has_swing) & ~lim_in_tree)
+            # Articulations with loop-closing joints solved with the tree: their
+            # own softness (loop_joint_hertz).
+            t.exact_loop = np.zeros(t.num_components + 1, dtype=bool)
+            t.exact_loop[t.body_component[self.parent[in_loop_solve]]] = True
+            t.exact_loop[t.body_component[self.child[in_loop_solve]]] = True
+            t.exact_loop[-1] = False
             t.gs_touched = np.zeros(t.num_components + 1, dtype=bool)
             t.gs_touched[t.body_component[self.parent[gs_rows]]] = True
             t.gs_touched[t.body_component[self.child[gs_rows]]] = True
@@ -457,8 +464,10 @@ class JointSet:
             self._soft = make_soft(0.0, 0.0, h)  # rigid rows, position error by projection
             self._limit_soft = self._tree_soft = self._soft
         elif self.tree is not None:
+            loop_hz = s.loop_joint_hertz if math.isinf(s.loop_joint_hertz) else min(s.loop_joint_hertz, cap)
             self._choose_tree_softness(make_soft(tree_hz, s.joint_damping_ratio, h),
-                                       make_soft(free_hz, s.joint_damping_ratio, h), touching)
+                                       make_soft(free_hz, s.joint_damping_ratio, h), touching,
+                                       make_soft(loop_hz, s.loop_joint_damping_ratio, h))
             self.tree.begin_step(self, model, state, h)
         self._h = h
         if self.breakable:
@@ -466,12 +475,14 @@ class JointSet:
             self._lin_sum = np.zeros(state.joint_linear_impulse.shape)
             self._ang_sum = np.zeros(state.joint_linear_impulse.shape[:2])
 
-    def _choose_tree_softness(self, soft, rigid, touching):
+    def _choose_tree_softness(self, soft, rigid, touching, loop):
         """Each tree joint's softness for the step: an articulation that a
         Gauss-Seidel row acts on (a contact this step, a loop-closing joint,
         a limit outside the tree) takes ``joint_hertz`` (``soft``), the others
         ``free_joint_hertz`` (``rigid``) and, with
-        ``free_joint_geometric_stiffness``, geometric stiffness.
+        ``free_joint_geometric_stiffness``, geometric stiffness; an
+        articulation with loop-closing rows solved with the tree takes
+        ``loop_joint_hertz`` (``loop``), in its tree and loop rows alike.
 
         The tree solve is exact, but Gauss-Seidel rows after it see one body's
         mass: against rigid joints a resting ragdoll chatters (a contact stops
@@ -490,10 +501,10 @@ class JointSet:
         on = hit[:, t.component]  # (W or 1, tree joints): soft
         if self.loop_rows is not None:
             # Exact loop rows take the softness of their articulation's tree
-            # joints (joint_hertz), so the coupled solve is one system, scaled
+            # joints (loop_joint_hertz), so the coupled solve is one system, scaled
             # alike (with rigid tree joints, soft loop rows gained 38 J in 10 s
             # in chain_loop where rigid ones gained none).
-            self._loop_soft = soft
+            self._loop_soft = loop
             t.loop_geometric_weight = 1.0 if s.joint_geometric_stiffness else None
         geo_free = s.free_joint_geometric_stiffness
         if soft == rigid and s.joint_geometric_stiffness == geo_free:
@@ -511,6 +522,16 @@ class JointSet:
                                        np.where(o, soft.impulse_scale, rigid.impulse_scale))
             weight = np.where(on, float(s.joint_geometric_stiffness), float(geo_free))
             t.geometric_weight = weight if weight.any() else None
+        in_loop = t.exact_loop[t.component] if self.loop_rows is not None else None
+        if in_loop is not None and in_loop.any():
+            base, o = self._tree_soft, in_loop[None, :, None]
+            self._tree_soft = Softness(np.where(o, loop.bias_rate, base.bias_rate),
+                                       np.where(o, loop.mass_scale, base.mass_scale),
+                                       np.where(o, loop.impulse_scale, base.impulse_scale))
+            w = t.geometric_weight
+            w = np.zeros(on.shape) if w is None else np.broadcast_to(np.asarray(w, dtype=float), on.shape)
+            w = np.where(in_loop, float(s.joint_geometric_stiffness), w)
+            t.geometric_weight = w if w.any() else None
 
     def _set_inertia(self, model, state):
         """World inverse inertias (and the rotation matrices, which the tree

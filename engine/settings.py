@@ -83,7 +83,8 @@ class Settings:
         are solved together with the tree rows, exactly, through the dense
         Schur complement of the loop rows (Baraff 1996); "gauss_seidel": they
         are Gauss-Seidel rows after the tree solve, as before. Either way an
-        articulation with loops is soft (``joint_hertz``): rigid, with its
+        articulation with loops is soft (``joint_hertz``; ``loop_joint_hertz``
+        when its loops are solved exactly): rigid, with its
         loops solved exactly, it held its joints less well (``benchmarks.
         stability`` chain_loop, a 20 kg ball on a slack chain pinned at both
         ends: 3.0 mm against 1.1 mm over 10 s; the grid below 29 mm against
@@ -97,8 +98,8 @@ class Settings:
         loop rows, about 11 MB per world for that grid (nothing for a scene
         without loops); batches go through in chunks of worlds of at most
         256 MB. Exact loop rows take the softness of their articulation's
-        tree joints (``joint_hertz``). Only with soft tree joints (finite
-        ``joint_hertz``; not at ``ACCURATE``): rigid, chain_loop held 0.2 mm
+        tree joints (``loop_joint_hertz``; the grid 0.91 cm since). Only with
+        soft tree joints (finite ``joint_hertz``; not at ``ACCURATE``): rigid, chain_loop held 0.2 mm
         over 10 s at ``ACCURATE``, but the grid gained 103 J (11 J with the
         regularisation below at 1e-3); and not when ``joint_limits_in_tree``
         puts limits in the tree; those loops stay Gauss-Seidel. Redundant loop rows (a chain pinned taut at both
@@ -139,6 +140,16 @@ class Settings:
         ragdoll come to rest; rigid, its contacts (which see one body's mass)
         and the exact tree solve fight, and it chatters at 5-9 cm/s 3-6 s after
         landing.
+    loop_joint_hertz, loop_joint_damping_ratio: the same for an articulation
+        with loop-closing joints solved with the tree (``joint_loops``
+        "exact"), its tree and loop rows alike; capped at half the substep
+        rate like joint_hertz. At joint_hertz's 60 Hz and damping ratio 2 the
+        10x10 sphere grid's free edge, whipping through at 12 m/s 1.9 s after
+        release, stretched the joints by 2.23 cm; at 120 Hz and 1.0 (the
+        defaults; the cap at 4 substeps of 1/60 s) 0.91 cm (10 km out 0.69
+        cm against 1.5), at 120 Hz and 2.0 1.42 cm, 5.0 1.75 cm
+        (benchmarks.stability sphere_grid; stiffer than the cap, rigid loop
+        rows gained energy: see joints).
     free_joint_hertz: the same for an articulation nothing else acts on (a
         pendulum, a chain in the air); default inf, rigid: a soft pendulum's
         period was 0.34% long and it lost 9% of its energy in 60 s (rigid:
@@ -266,6 +277,8 @@ class Settings:
     joint_active_set_passes: int = 3
     joint_hertz: float = 60.0
     joint_damping_ratio: float = 2.0
+    loop_joint_hertz: float = 120.0
+    loop_joint_damping_ratio: float = 1.0
     free_joint_hertz: float = math.inf
     free_joint_geometric_stiffness: bool = True
     gs_joint_hertz: float = 60.0
@@ -315,7 +328,8 @@ class Settings:
         if self.contact_coloring not in CONTACT_COLORINGS:
             raise ValueError(f"settings: unknown contact_coloring {self.contact_coloring!r}; "
                              f"choose one of {CONTACT_COLORINGS}")
-        for name in ("joint_hertz", "free_joint_hertz", "gs_joint_hertz", "contact_hertz", "limit_hertz"):
+        for name in ("joint_hertz", "loop_joint_hertz", "free_joint_hertz", "gs_joint_hertz", "contact_hertz",
+                     "limit_hertz"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"settings: {name} must be > 0 (inf for rigid), got {getattr(self, name)!r}")
         tree = self.joint_solver == "tree" and self.solver == "soft_step"
@@ -328,7 +342,8 @@ class Settings:
             # The tree's active set solves rigid limit rows only; with soft limits the flag did nothing.
             raise ValueError(f"settings: joint_limits_in_tree solves rigid limits (limit_hertz inf), got limit_hertz "
                              f"{self.limit_hertz!r}; for soft limits leave joint_limits_in_tree off")
-        for name in ("joint_geometric_stiffness_cap", "joint_damping_ratio", "gs_joint_damping_ratio", "contact_damping_ratio", "max_push_out",
+        for name in ("joint_geometric_stiffness_cap", "joint_damping_ratio", "loop_joint_damping_ratio",
+                     "gs_joint_damping_ratio", "contact_damping_ratio", "max_push_out",
                      "joint_max_push_out", "joint_max_angular_push_out", "joint_projection_slop",
                      "joint_projection_contact_weight",
                      "restitution_threshold", "linear_slop", "speculative_distance"):
