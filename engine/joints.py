@@ -39,8 +39,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from .coloring import color_pairs
-from .math3d import (EX, EY, EZ, sym3_inverse, clamp_norm, cross, quat_rotate_inv, dot, mat_vec, quat_conj, quat_mul, quat_rotate, sym3_solve,
-                     quat_to_matrix, world_inv_inertia)
+from .math3d import (EX, EY, EZ, sym3_inverse, clamp_norm, cross, quat_rotate_inv, dot, mat_vec, quat_conj, quat_mul,
+                     quat_rotate, sym3_solve, quat_to_matrix, world_inv_inertia)
 from .joint_projection import project_joints
 from .soft import Softness, implicit_spring_impulse, make_soft
 from .state import Event
@@ -142,6 +142,7 @@ class JointSet:
         self.has_limit = has_limit = np.isfinite(self.lower) | np.isfinite(self.upper)
         self.has_swing = has_swing = (self.kind == BALL) & (self.cone < math.pi).any(axis=1)
         self.tree = None
+        self._loop_tree_joints = None
         in_tree = np.zeros(J, dtype=bool)
         lim_in_tree = np.zeros(J, dtype=bool)
         if settings.joint_solver == "tree" and settings.solver == "soft_step" and J:
@@ -206,12 +207,13 @@ class JointSet:
             # ball on a slack chain pinned at both ends, benchmarks.stability
             # chain_loop: 3.0 mm against 1.1 mm soft over 10 s).
             gs_rows = ~in_tree | ((has_limit | has_swing) & ~lim_in_tree)
-            # Articulations with loop-closing joints solved with the tree: their
-            # own softness (loop_joint_hertz).
-            t.exact_loop = np.zeros(t.num_components + 1, dtype=bool)
-            t.exact_loop[t.body_component[self.parent[in_loop_solve]]] = True
-            t.exact_loop[t.body_component[self.child[in_loop_solve]]] = True
-            t.exact_loop[-1] = False
+            # Tree joints of articulations with loop-closing joints solved with
+            # the tree: their own softness (loop_joint_hertz); None without any.
+            exact_loop = np.zeros(t.num_components + 1, dtype=bool)
+            exact_loop[t.body_component[self.parent[in_loop_solve]]] = True
+            exact_loop[t.body_component[self.child[in_loop_solve]]] = True
+            exact_loop[-1] = False
+            self._loop_tree_joints = exact_loop[t.component] if exact_loop.any() else None
             t.gs_touched = np.zeros(t.num_components + 1, dtype=bool)
             t.gs_touched[t.body_component[self.parent[gs_rows]]] = True
             t.gs_touched[t.body_component[self.child[gs_rows]]] = True
@@ -522,8 +524,8 @@ class JointSet:
                                        np.where(o, soft.impulse_scale, rigid.impulse_scale))
             weight = np.where(on, float(s.joint_geometric_stiffness), float(geo_free))
             t.geometric_weight = weight if weight.any() else None
-        in_loop = t.exact_loop[t.component] if self.loop_rows is not None else None
-        if in_loop is not None and in_loop.any():
+        in_loop = self._loop_tree_joints
+        if in_loop is not None:
             base, o = self._tree_soft, in_loop[None, :, None]
             self._tree_soft = Softness(np.where(o, loop.bias_rate, base.bias_rate),
                                        np.where(o, loop.mass_scale, base.mass_scale),

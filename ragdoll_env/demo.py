@@ -24,7 +24,7 @@ import engine
 from engine import Box
 from engine.humanoid import add_humanoid, pose, random_pose
 
-from .cli_args import int_at_least
+from .cli_args import non_negative_int, positive_int
 from .render import Renderer, frame_strip, save_png
 
 STEP_RISE, STEP_RUN, STEPS = 0.18, 0.35, 5
@@ -167,16 +167,16 @@ def _positive_seconds(text: str) -> float:
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m ragdoll_env.demo", description=__doc__.split("\n\n")[0])
     p.add_argument("--out", required=True, help="output directory")
-    p.add_argument("--frames", type=int_at_least(1), default=8, help="frames in the PNG strip (default 8)")
+    p.add_argument("--frames", type=positive_int, default=8, help="frames in the PNG strip (default 8)")
     p.add_argument("--scene", choices=("stairs", "boxes"), default="stairs")
     p.add_argument("--video", action="store_true", help="also write an MP4")
     p.add_argument("--seconds", type=_positive_seconds, default=3.0, help="simulated time (default 3 s)")
-    p.add_argument("--width", type=int_at_least(1), default=320, help="image width in pixels (default 320)")
-    p.add_argument("--height", type=int_at_least(1), default=240, help="image height in pixels (default 240)")
-    p.add_argument("--fps", type=int_at_least(1), default=30,
+    p.add_argument("--width", type=positive_int, default=320, help="image width in pixels (default 320)")
+    p.add_argument("--height", type=positive_int, default=240, help="image height in pixels (default 240)")
+    p.add_argument("--fps", type=positive_int, default=30,
                    help="video frames per simulated second with --video (default 30; a whole number of 1/60 s "
                         "steps per frame, so at most 60)")
-    p.add_argument("--seed", type=int_at_least(0), default=0, help="seed of the boxes scene (default 0)")
+    p.add_argument("--seed", type=non_negative_int, default=0, help="seed of the boxes scene (default 0)")
     args = p.parse_args(argv)
     if os.path.exists(args.out) and not os.path.isdir(args.out):
         p.error(f"--out {args.out}: exists and is not a directory")
