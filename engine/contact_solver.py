@@ -113,10 +113,10 @@ class _Block:
 def _separation(state, c):
     """Current separation (R, 4) of the rows of block ``c`` from their bodies'
     displacement this step: s₀ + n·(Δ(x_b + r_b) - Δ(x_a + r_a))."""
-    pa = state.position.reshape(-1, 3)[c.ka]
-    pb = state.position.reshape(-1, 3)[c.kb]
-    qa = state.orientation.reshape(-1, 4)[c.ka]
-    qb = state.orientation.reshape(-1, 4)[c.kb]
+    pa = state.position.reshape(-1, 3).take(c.ka, 0)
+    pb = state.position.reshape(-1, 3).take(c.kb, 0)
+    qa = state.orientation.reshape(-1, 4).take(c.ka, 0)
+    qb = state.orientation.reshape(-1, 4).take(c.kb, 0)
     ra = quat_rotate(qa[:, None], c.la)
     rb = quat_rotate(qb[:, None], c.lb)
     d = (pb - c.xb0)[:, None] + rb - c.rb - (pa - c.xa0)[:, None] - ra + c.ra
@@ -219,7 +219,7 @@ class ContactRows:
     def _gather(self, state, c):
         v = state.velocity.reshape(-1, 3)
         w = state.angular_velocity.reshape(-1, 3)
-        return v[c.ka], w[c.ka], v[c.kb], w[c.kb]
+        return v.take(c.ka, 0), w.take(c.ka, 0), v.take(c.kb, 0), w.take(c.kb, 0)
 
     def _scatter(self, state, c, va, wa, vb, wb):
         v = state.velocity.reshape(-1, 3)
@@ -326,14 +326,14 @@ class ContactRows:
             bias = np.where(open_, sep / h, 0.0)
             gain, isc = -c.mn, None
         # The rows' impulses, gathered once and written back after the sweep.
-        lam_n, max_lam_n = self.lam_n[rows], self.max_lam_n[rows]
-        s_close = self.s_close[rows]
+        lam_n, max_lam_n = self.lam_n.take(rows, 0), self.max_lam_n.take(rows, 0)
+        s_close = self.s_close.take(rows, 0)
         # Closing speeds at the row's start, before its own points'
         # impulses (a face landing flat records one speed at all four),
         # for restitution: only while a point may still first take load.
         record = self.bouncy and bool(((max_lam_n == 0) & valid).any())
         if record:
-            vn_close = self.vn_close[rows]
+            vn_close = self.vn_close.take(rows, 0)
             vn_row = [dot(v_rel(j), n) for j in range(P)]
         # Rows between two moving bodies take NORMAL_PASSES passes over their
         # normal points: one pass in the fixed order 0..3 leaves the earlier
@@ -368,7 +368,7 @@ class ContactRows:
             lam_n[:, j] = new
             max_lam_n[:, j] = np.maximum(max_lam_n[:, j], new)
             va, wa, vb, wb = self._apply(c, j, d[:, None] * n, va, wa, vb, wb)
-        lam_t1, lam_t2 = self.lam_t1[rows], self.lam_t2[rows]
+        lam_t1, lam_t2 = self.lam_t1.take(rows, 0), self.lam_t2.take(rows, 0)
         limit = c.mu * lam_n
         for j in range(P):
             vrel = v_rel(j)

@@ -72,7 +72,7 @@ def _unique_splits(targets):
 
 def _scatter_add(out, splits, v):
     for sel, tgt in splits:
-        out[:, tgt] += v[:, sel]
+        out[:, tgt] += v.take(sel, 1)
 
 
 class _JointTree:
@@ -236,7 +236,7 @@ class _Rows:
         """The joints' position errors: anchor separation x_b + r_b - x_a - r_a (m)
         and the angular error vector (rad) whose lock-row components the rows
         hold at zero: hinge a_p × a_c of the two x axes, fixed 2 vec(q_c q_p*)."""
-        lin = state.position[:, b] + rb - state.position[:, a] - ra
+        lin = state.position.take(b, 1) + rb - state.position.take(a, 1) - ra
         shape = ra.shape
         ax_p = quat_rotate(fpw, np.broadcast_to(EX, shape))
         ax_c = quat_rotate(fcw, np.broadcast_to(EX, shape))
@@ -364,7 +364,7 @@ class _TreeSolver(_Rows):
         # Angular lock rows: hinge (0, y, z) of the parent frame, fixed I, ball none.
         E = np.zeros((W, nj, 3, 3))
         if rows.hinges.size:
-            fh = fpw[:, rows.hinges]
+            fh = fpw.take(rows.hinges, 1)
             E[:, rows.hinges, 1] = quat_rotate(fh, np.broadcast_to(EY, fh.shape[:-1] + (3,)))
             E[:, rows.hinges, 2] = quat_rotate(fh, np.broadcast_to(EZ, fh.shape[:-1] + (3,)))
         E[:, rows.fixed] = np.eye(3)
@@ -388,8 +388,8 @@ class _TreeSolver(_Rows):
         a, b, fpw, fcw, ra, rb, E, Ja, Jb, mask = blocks
         r = np.empty(mask.shape)
         if velocity:
-            va, vb = state.velocity[:, a], state.velocity[:, b]
-            wa, wb = state.angular_velocity[:, a], state.angular_velocity[:, b]
+            va, vb = state.velocity.take(a, 1), state.velocity.take(b, 1)
+            wa, wb = state.angular_velocity.take(a, 1), state.angular_velocity.take(b, 1)
             r[..., :3] = vb + cross(wb, rb) - va - cross(wa, ra)
             r[..., 3:] = mat_vec(E, wb - wa)
         else:
@@ -588,7 +588,7 @@ class _TreeSolver(_Rows):
 
         def rows_of(JA, JB, ia, ib, v):
             """J v for row blocks with sides ia, ib: (W, n, 6, k) from (W, N, 6, k)."""
-            return _mm(JA, v[:, ia]) + _mm(JB, v[:, ib])
+            return _mm(JA, v.take(ia, 1)) + _mm(JB, v.take(ib, 1))
 
         # G = W⁻¹ J_Lᵀ, one column per used loop row (the kinds' rows; broken
         # joints' rows are masked per world below).
@@ -623,7 +623,7 @@ class _TreeSolver(_Rows):
     def _lam(self, state, rows=None):
         """Accumulated equality-row impulses (W, n, 6) of the tree's joints (or of ``rows``)."""
         idx = (self if rows is None else rows).joints
-        return np.concatenate((state.joint_linear_impulse[:, idx], state.joint_angular_impulse[:, idx]), axis=-1)
+        return np.concatenate((state.joint_linear_impulse.take(idx, 1), state.joint_angular_impulse.take(idx, 1)), axis=-1)
 
     def _apply(self, js, model, state, a, b, Ja, Jb, d, rows=None):
         """Accumulate the equality-row impulses d of the tree's joints (or of
@@ -670,17 +670,17 @@ class _TreeSolver(_Rows):
         for g in self.groups:
             if g.body:
                 Di = g.pivots(leaf_inv is not None,
-                              lambda ids: leaf_inv[:, ids],
-                              lambda ids: _inv_definite(metric[:, ids] - acc_b[:, ids]))
+                              lambda ids: leaf_inv.take(ids, 1),
+                              lambda ids: _inv_definite(metric.take(ids, 1) - acc_b.take(ids, 1)))
                 if g.has_parent:
-                    Jg = Jc[:, g.pj]
+                    Jg = Jc.take(g.pj, 1)
                     Lg = _mm(Di, np.swapaxes(Jg, -1, -2))
                     acc_j[:, g.pj] = _mm(Jg, Lg)
             else:
-                Di = g.pivots(ball_rows, lambda j: self._ball_pivot_inverse(acc_j[:, j], mask[:, j]),
-                              lambda j: _inv_definite(self._joint_pivot(acc_j[:, j], mask[:, j])))
+                Di = g.pivots(ball_rows, lambda j: self._ball_pivot_inverse(acc_j.take(j, 1), mask.take(j, 1)),
+                              lambda j: _inv_definite(self._joint_pivot(acc_j.take(j, 1), mask.take(j, 1))))
                 if g.has_parent:
-                    Jg = Jp[:, g.jids]
+                    Jg = Jp.take(g.jids, 1)
                     Lg = _mm(Di, Jg)
                     _scatter_add(acc_b, g.splits, _mtm(Jg, Lg))
             Dinv.append(Di)
@@ -718,11 +718,11 @@ class _TreeSolver(_Rows):
         bp = []
         for g, Lg in zip(self.groups, L):
             if g.body:
-                b = -acc_b[:, g.ids]
+                b = -acc_b.take(g.ids, 1)
                 if g.has_parent:
                     acc_j[:, g.pj] = _mtm(Lg, b)
             else:
-                b = R[:, g.jids] - acc_j[:, g.jids]
+                b = R.take(g.jids, 1) - acc_j.take(g.jids, 1)
                 if g.has_parent:
                     _scatter_add(acc_b, g.splits, _mtm(Lg, b))
             bp.append(b)
@@ -732,10 +732,10 @@ class _TreeSolver(_Rows):
             xi = _mm(Di, b)
             if g.body:
                 if g.has_parent:
-                    xi = xi - _mm(Lg, x_j[:, g.pj])
+                    xi = xi - _mm(Lg, x_j.take(g.pj, 1))
                 x_b[:, g.ids] = xi
             else:
                 if g.has_parent:
-                    xi = xi - _mm(Lg, x_b[:, g.par])
+                    xi = xi - _mm(Lg, x_b.take(g.par, 1))
                 x_j[:, g.jids] = xi
         return -x_j  # (J M⁻¹ Jᵀ)⁻¹ R per joint

@@ -21,12 +21,15 @@ def _rows(shape, seed):
     ("quat_mul", ((4,), (4,))),
     ("quat_rotate", ((4,), (3,))),
     ("quat_to_matrix", ((4,),)),
+    ("sym3_inverse", ((3, 3),)),
 ])
 def test_small_and_large_batches_give_the_same_bits(name, shapes):
     fn = getattr(M, name)
     args = [_rows((BIG,) + s, seed) for seed, s in enumerate(shapes)]
     if name in ("quat_rotate", "quat_to_matrix"):
         args[0] = M.quat_normalize(args[0])
+    if name == "sym3_inverse":
+        args[0] = args[0] @ np.swapaxes(args[0], -1, -2)
     big = fn(*args)
     for k in range(0, BIG, 97):  # one row at a time, and a few rows at a time
         one = fn(*[a[k:k + 1] for a in args])
@@ -50,3 +53,5 @@ def test_compact_forms_are_the_textbook_products():
     # p ⊗ q rotates as R(p) R(q)
     p = M.quat_normalize(rng.normal(size=(5, 4)))
     np.testing.assert_allclose(M.quat_to_matrix(M.quat_mul(p, q)), M.quat_to_matrix(p) @ r, atol=1e-14)
+    k = m @ np.swapaxes(m, -1, -2) + np.eye(3)
+    np.testing.assert_allclose(M.sym3_inverse(k) @ k, np.broadcast_to(np.eye(3), (5, 3, 3)), atol=1e-12)
