@@ -21,7 +21,7 @@ import numpy as np
 
 from .collision import MAX_POINTS, aabb, candidate_pairs, overlapping, pair_function
 from .contact_solver import ContactRows
-from .math3d import norm, quat_rotate_inv
+from .math3d import norm
 from .shapes import NONE, PLANE
 
 

@@ -93,7 +93,7 @@ def _project(js, tree, state, keep, slop, metric, passes):
     M_inv_tree = M_inv[:, tree.t.bodies]  # the leaf bodies' pivots
     loops = js.loop_rows
     done = np.zeros(state.num_worlds, dtype=bool)
-    before = None
+    before = moved = None
     for k in range(passes + 1):
         rows = tree.jacobians(js, state, True, 1.0, velocity=False, max_push_out=np.inf, max_angular_push_out=np.inf)
         a, b, Ja, Jb, mask, C = rows

@@ -134,9 +134,7 @@ class _JointTree:
         depth = np.full(n, -1, dtype=np.int64)
         # For joint nodes: whether the joint's parent body (side a) is the tree parent.
         self.a_is_parent = np.zeros(len(self.joints), dtype=bool)
-        jset = set(int(j) for j in self.joints)
         # Roots: the static-anchored joint of a component, else its lowest body.
-        visited = set()
         order = []
         roots = [joint_node[int(j)] for j in self.joints
                  if not (dynamic[parent[j]] and dynamic[child[j]])]
@@ -237,9 +235,8 @@ class _Rows:
         and the angular error vector (rad) whose lock-row components the rows
         hold at zero: hinge a_p × a_c of the two x axes, fixed 2 vec(q_c q_p*)."""
         lin = state.position.take(b, 1) + rb - state.position.take(a, 1) - ra
-        shape = ra.shape
-        ax_p = quat_rotate(fpw, np.broadcast_to(EX, shape))
-        ax_c = quat_rotate(fcw, np.broadcast_to(EX, shape))
+        ax_p = quat_rotate(fpw, EX)
+        ax_c = quat_rotate(fcw, EX)
         herr = cross(ax_p, ax_c)
         qd = quat_mul(fcw, quat_conj(fpw))
         ferr = 2.0 * qd[..., 1:] * np.where(qd[..., 0:1] < 0, -1.0, 1.0)
@@ -365,8 +362,8 @@ class _TreeSolver(_Rows):
         E = np.zeros((W, nj, 3, 3))
         if rows.hinges.size:
             fh = fpw.take(rows.hinges, 1)
-            E[:, rows.hinges, 1] = quat_rotate(fh, np.broadcast_to(EY, fh.shape[:-1] + (3,)))
-            E[:, rows.hinges, 2] = quat_rotate(fh, np.broadcast_to(EZ, fh.shape[:-1] + (3,)))
+            E[:, rows.hinges, 1] = quat_rotate(fh, EY)
+            E[:, rows.hinges, 2] = quat_rotate(fh, EZ)
         E[:, rows.fixed] = np.eye(3)
         # Side b: [[I, -[r_b]×], [0, E]]; side a: -[[I, -[r_a]×], [0, E]]; rows masked.
         J = np.zeros((2, W, nj, 6, 6))

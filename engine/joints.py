@@ -39,10 +39,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from .coloring import color_pairs
-from .math3d import (EX, EY, EZ, sym3_inverse, clamp_norm, cross, quat_rotate_inv, dot, mat_vec, quat_conj, quat_mul,
+from .math3d import (EX, EY, EZ, clamp_norm, cross, quat_rotate_inv, dot, mat_vec, quat_conj, quat_mul,
                      quat_rotate, sym3_solve, quat_to_matrix, world_inv_inertia)
 from .joint_projection import project_joints
-from .soft import Softness, implicit_spring_impulse, make_soft
+from .soft import Softness, implicit_spring_impulse_from, implicit_spring_terms, make_soft
 from .state import Event
 
 HINGE, BALL, FIXED = 0, 1, 2
@@ -426,16 +426,14 @@ class JointSet:
         a_all, b_all, fpw, _, _, _ = self.frames(state, order)
         ia_all, ib_all = self._iinv.take(a_all, 1), self._iinv.take(b_all, 1)
         k, c = self.stiffness[order], self.damping[order]
-        # implicit_spring_impulse's P = -h (k C + (c + h k) Ċ) / (1 + h (c + h k) m⁻¹),
-        # its terms without Ċ computed here as it computes them.
-        ck = c + h * k
-        kerr = k[:, None] * (self.angles(state, order) - self.rest[order])
+        err = self.angles(state, order) - self.rest[order]
         use = self._active(state, order)[..., None] * self._passive_use
-        axes, den = [], []
-        for e in (EX, EY, EZ):
-            axis = quat_rotate(fpw, np.broadcast_to(e, fpw.shape[:-1] + (3,)))
+        axes, terms = [], []
+        for n, e in enumerate((EX, EY, EZ)):
+            axis = quat_rotate(fpw, e)
             axes.append(axis)
-            den.append(1.0 + (h * ck) * (dot(axis, mat_vec(ia_all, axis)) + dot(axis, mat_vec(ib_all, axis))))
+            inv_m = dot(axis, mat_vec(ia_all, axis)) + dot(axis, mat_vec(ib_all, axis))
+            terms.append(implicit_spring_terms(k, c, h, err[..., n], inv_m))
         for color in self.colors:
             sl = color["passive_slice"]
             if sl.start == sl.stop:
@@ -443,10 +441,10 @@ class JointSet:
             a, b = a_all[sl], b_all[sl]
             ia, ib = ia_all[:, sl], ib_all[:, sl]
             wa, wb = state.angular_velocity.take(a, 1), state.angular_velocity.take(b, 1)
-            ck_c = ck[sl]
             for n in range(color["passive_axes"]):
                 axis = axes[n][:, sl]
-                p = -h * (kerr[:, sl, n] + ck_c * dot(wb - wa, axis)) / den[n][:, sl]
+                k_err, ck, den = terms[n]
+                p = implicit_spring_impulse_from(h, (k_err[:, sl], ck[sl], den[:, sl]), dot(wb - wa, axis))
                 p = (p * use[:, sl, n])[..., None] * axis
                 wa = wa - mat_vec(ia, p)
                 wb = wb + mat_vec(ib, p)
@@ -579,8 +577,8 @@ class JointSet:
         hinge = self._warm_hinge
         # Hinge lock impulses are stored in the parent frame's (y, z) axes.
         if hinge.any():
-            by = quat_rotate(fpw, np.broadcast_to(EY, ra.shape))
-            bz = quat_rotate(fpw, np.broadcast_to(EZ, ra.shape))
+            by = quat_rotate(fpw, EY)
+            bz = quat_rotate(fpw, EZ)
             lh = L[..., 1:2] * by + L[..., 2:3] * bz
             L = np.where(hinge[:, None], lh, L)
         L = L + self._limit_vector(state, idx)
@@ -612,9 +610,8 @@ class JointSet:
         ``st``: the joints' ``swing_twist`` if already known.
         Returns (J_twist, twist, J_swing, C_swing).
         """
-        shape = fpw.shape[:-1] + (3,)
-        ax_p = quat_rotate(fpw, np.broadcast_to(EX, shape))
-        ax_c = quat_rotate(fcw, np.broadcast_to(EX, shape))
+        ax_p = quat_rotate(fpw, EX)
+        ax_c = quat_rotate(fcw, EX)
         twist, phi, dy, dz = swing_twist(quat_mul(quat_conj(fpw), fcw)) if st is None else st
         ball = (self.kind[idx] == BALL)[:, None]
         mid = ax_p + ax_c
@@ -754,17 +751,16 @@ class JointSet:
 
     def _solve_hinge_lock(self, model, state, idx, h, use_bias, soft):
         a, b, fpw, fcw, ra, rb = self.frames(state, idx)
-        shape = ra.shape
-        by = quat_rotate(fpw, np.broadcast_to(EY, shape))
-        bz = quat_rotate(fpw, np.broadcast_to(EZ, shape))
+        by = quat_rotate(fpw, EY)
+        bz = quat_rotate(fpw, EZ)
         ia, ib = self._iinv[:, a], self._iinv[:, b]
         isum = ia + ib
         wrel = state.angular_velocity[:, b] - state.angular_velocity[:, a]
         c1, c2 = dot(wrel, by), dot(wrel, bz)
         bias_rate, mass_scale, impulse_scale = self._soft_terms(use_bias, soft)
         if bias_rate:
-            ax_p = quat_rotate(fpw, np.broadcast_to(EX, shape))
-            ax_c = quat_rotate(fcw, np.broadcast_to(EX, shape))
+            ax_p = quat_rotate(fpw, EX)
+            ax_c = quat_rotate(fcw, EX)
             err = clamp_norm(bias_rate * cross(ax_p, ax_c), self.settings.joint_max_angular_push_out)
             c1 = c1 + dot(err, by)
             c2 = c2 + dot(err, bz)

@@ -33,8 +33,9 @@ EX = np.array([1.0, 0.0, 0.0])
 EY = np.array([0.0, 1.0, 0.0])
 EZ = np.array([0.0, 0.0, 1.0])
 
-_YZX = np.array([1, 2, 0])
-_ZXY = np.array([2, 0, 1])
+# cross's products a_y b_z, a_z b_x, a_x b_y, then a_z b_y, a_x b_z, a_y b_x.
+_CROSS_A = np.array([1, 2, 0, 2, 0, 1])
+_CROSS_B = np.array([2, 0, 1, 1, 2, 0])
 
 
 #: Vectors (..., 3) at or above this count take the component-wise forms of
@@ -48,9 +49,10 @@ COMPONENT_WISE_FROM = 512
 def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Cross product over the last axis (size 3): (a_y b_z - a_z b_y, ...)."""
     if a.size < 3 * COMPONENT_WISE_FROM and b.size < 3 * COMPONENT_WISE_FROM:
-        # Two products of cyclically permuted copies: fewer numpy calls
-        # (np.take, 2-3x cheaper than fancy indexing on small arrays).
-        return a.take(_YZX, -1) * b.take(_ZXY, -1) - a.take(_ZXY, -1) * b.take(_YZX, -1)
+        # The six products in one array (np.take, 2-3x cheaper than fancy
+        # indexing on small arrays), then first three minus last three.
+        p = a.take(_CROSS_A, -1) * b.take(_CROSS_B, -1)
+        return p[..., :3] - p[..., 3:]
     ax, ay, az = a[..., 0], a[..., 1], a[..., 2]
     bx, by, bz = b[..., 0], b[..., 1], b[..., 2]
     out = np.empty(np.broadcast_shapes(a.shape, b.shape), dtype=np.result_type(a, b))

@@ -45,5 +45,18 @@ def implicit_spring_impulse(k, c, h, error, error_rate, inv_mass):
     and Ċ(t+h) = Ċ + inv_mass P:
         P = -h (k C + (c + h k) Ċ) / (1 + h (c + h k) inv_mass).
     """
-    g = h * (c + h * k)
-    return -h * (k * error + (c + h * k) * error_rate) / (1.0 + g * inv_mass)
+    return implicit_spring_impulse_from(h, implicit_spring_terms(k, c, h, error, inv_mass), error_rate)
+
+
+def implicit_spring_terms(k, c, h, error, inv_mass):
+    """The parts of ``implicit_spring_impulse`` that do not depend on Ċ:
+    (k C, c + h k, 1 + h (c + h k) inv_mass), for rows swept several times
+    at the same positions."""
+    ck = c + h * k
+    return k * error, ck, 1.0 + (h * ck) * inv_mass
+
+
+def implicit_spring_impulse_from(h, terms, error_rate):
+    """``implicit_spring_impulse`` from its ``implicit_spring_terms``."""
+    k_error, ck, denominator = terms
+    return -h * (k_error + ck * error_rate) / denominator

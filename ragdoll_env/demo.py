@@ -25,7 +25,7 @@ from engine import Box
 from engine.humanoid import add_humanoid, pose, random_pose
 
 from .cli_args import non_negative_int, positive_int
-from .render import Renderer, frame_strip, save_png
+from .render import Renderer, frame_strip
 
 STEP_RISE, STEP_RUN, STEPS = 0.18, 0.35, 5
 

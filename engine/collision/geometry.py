@@ -22,7 +22,7 @@ TINY_LENGTH = 1e-9
 
 def local_z(quat: np.ndarray) -> np.ndarray:
     """World direction of the body's local +z axis (capsule axis, plane normal)."""
-    return quat_rotate(quat, np.broadcast_to(EZ, quat.shape[:-1] + (3,)))
+    return quat_rotate(quat, EZ)
 
 
 def sign_nonneg(x: np.ndarray) -> np.ndarray:

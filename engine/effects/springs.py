@@ -22,7 +22,6 @@ Two integration paths, chosen per spring at build time:
 
 from __future__ import annotations
 
-import math
 
 import numpy as np
 
