@@ -334,7 +334,7 @@ class ContactRows:
         record = self.bouncy and bool(((max_lam_n == 0) & valid).any())
         if record:
             vn_close = self.vn_close.take(rows, 0)
-            vn_row = [dot(v_rel(j), n) for j in range(P)]
+            vn_row = np.stack([dot(v_rel(j), n) for j in range(P)], axis=1)
         # Rows between two moving bodies take NORMAL_PASSES passes over their
         # normal points: one pass in the fixed order 0..3 leaves the earlier
         # points' residual speed in a pattern fixed by that order, a torque
@@ -347,27 +347,31 @@ class ContactRows:
         if passes > 1:
             ok_later = valid & paired[:, None]  # later passes: paired rows solve ...
             keep_later = valid & ~paired[:, None]  # ... the others keep their impulse
-        for k in range(passes * P):
-            j = k % P
-            vn = dot(v_rel(j), n)
-            lam = lam_n[:, j]
-            d = gain[:, j] * (vn + bias[:, j])
-            if isc is not None:
-                d = d - isc[:, j] * lam
-            if k < P:
-                new = np.where(valid[:, j], np.maximum(lam + d, 0.0), 0.0)
-            else:
-                new = np.where(ok_later[:, j], np.maximum(lam + d, 0.0), np.where(keep_later[:, j], lam, 0.0))
-            d = new - lam
-            # Closing speed for restitution: the normal velocity just
-            # before the point first takes load in this step.
-            first = (max_lam_n[:, j] == 0) & (new > 0)
+        for k in range(passes):
+            news = []
+            for j in range(P):
+                vn = dot(v_rel(j), n)
+                lam = lam_n[:, j]
+                d = gain[:, j] * (vn + bias[:, j])
+                if isc is not None:
+                    d = d - isc[:, j] * lam
+                if k == 0:
+                    new = np.where(valid[:, j], np.maximum(lam + d, 0.0), 0.0)
+                else:
+                    new = np.where(ok_later[:, j], np.maximum(lam + d, 0.0), np.where(keep_later[:, j], lam, 0.0))
+                news.append(new)
+                va, wa, vb, wb = self._apply(c, j, (new - lam)[:, None] * n, va, wa, vb, wb)
+            # Each point reads only its own impulse, so the pass's bookkeeping
+            # is done for all its points at once. Closing speed for
+            # restitution: the normal velocity just before the point first
+            # takes load in this step.
+            new = np.stack(news, axis=1)
+            first = (max_lam_n == 0) & (new > 0)
             if record:
-                vn_close[:, j] = np.where(first, vn_row[j], vn_close[:, j])
-            s_close[:, j] = np.where(first, sep[:, j], s_close[:, j])
-            lam_n[:, j] = new
-            max_lam_n[:, j] = np.maximum(max_lam_n[:, j], new)
-            va, wa, vb, wb = self._apply(c, j, d[:, None] * n, va, wa, vb, wb)
+                vn_close = np.where(first, vn_row, vn_close)
+            s_close = np.where(first, sep, s_close)
+            lam_n = new
+            max_lam_n = np.maximum(max_lam_n, new)
         lam_t1, lam_t2 = self.lam_t1.take(rows, 0), self.lam_t2.take(rows, 0)
         limit = c.mu * lam_n
         for j in range(P):
