@@ -355,6 +355,9 @@ class ContactRows:
                 d = gain[:, j] * (vn + bias[:, j])
                 if isc is not None:
                     d = d - isc[:, j] * lam
+                if not (lam.any() or (d > 0.0).any()):
+                    news.append(lam)  # no point holds or takes an impulse: λ stays 0
+                    continue
                 if k == 0:
                     new = np.where(valid[:, j], np.maximum(lam + d, 0.0), 0.0)
                 else:
@@ -375,8 +378,10 @@ class ContactRows:
         lam_t1, lam_t2 = self.lam_t1.take(rows, 0), self.lam_t2.take(rows, 0)
         limit = c.mu * lam_n
         for j in range(P):
-            vrel = v_rel(j)
             l1, l2 = lam_t1[:, j], lam_t2[:, j]
+            if not (limit[:, j].any() or l1.any() or l2.any()):
+                continue  # no normal impulse and no friction impulse: the disc is a point
+            vrel = v_rel(j)
             n1 = l1 - c.mt1[:, j] * dot(vrel, t1)
             n2 = l2 - c.mt2[:, j] * dot(vrel, t2)
             scale = _coulomb_scale(n1, n2, limit[:, j])

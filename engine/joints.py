@@ -819,6 +819,8 @@ class JointSet:
         d = gain * (dot(wb - wa, axis) + bias)
         if isc is not None:
             d = d - isc * lam
+        if not (lam.any() or (d > 0.0).any()):
+            return  # no row holds or takes an impulse: λ stays 0, the velocities as they are
         new = np.maximum(lam + d, 0.0)
         if act is not None:
             new = new * act
