@@ -460,7 +460,10 @@ class _TreeSolver(_Rows):
             _, blocks, factors = self._factored
             a, b, Ja, Jb, mask, r = self.right_hand_side(js, state, blocks, self, use_bias, bias_rate)
             x = self._substitute(factors, r)
-            d = (-mass_scale * x - impulse_scale * self._lam(state)) * mask
+            # The relax solve and rigid rows: no impulse term (its accumulated
+            # impulses are not gathered).
+            lam_term = 0.0 if np.ndim(impulse_scale) == 0 and impulse_scale == 0.0 else impulse_scale * self._lam(state)
+            d = (-mass_scale * x - lam_term) * mask
             self._apply(js, model, state, a, b, Ja, Jb, d)
             return
         lrows, lr, sigma, exists, lower = self.limit_rows(js, state, h, use_bias)
