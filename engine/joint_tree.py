@@ -623,7 +623,8 @@ class _TreeSolver(_Rows):
     def _lam(self, state, rows=None):
         """Accumulated equality-row impulses (W, n, 6) of the tree's joints (or of ``rows``)."""
         idx = (self if rows is None else rows).joints
-        return np.concatenate((state.joint_linear_impulse.take(idx, 1), state.joint_angular_impulse.take(idx, 1)), axis=-1)
+        return np.concatenate((state.joint_linear_impulse.take(idx, 1), state.joint_angular_impulse.take(idx, 1)),
+                              axis=-1)
 
     def _apply(self, js, model, state, a, b, Ja, Jb, d, rows=None):
         """Accumulate the equality-row impulses d of the tree's joints (or of

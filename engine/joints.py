@@ -225,7 +225,6 @@ class JointSet:
             t.loop_touched[t.body_component[self.parent[gs_loop]]] = True
             t.loop_touched[t.body_component[self.child[gs_loop]]] = True
             t.loop_touched[-1] = False
-        self.passive_joints = np.flatnonzero((self.damping > 0) | (self.stiffness > 0))
         # The passive joints colour by colour, so that a colour's are one slice.
         self._passive_order = np.concatenate([c["passive"] for c in self.colors] + [np.zeros(0, dtype=np.int64)]
                                              ).astype(np.int64)
@@ -655,8 +654,8 @@ class JointSet:
         rows = self._gs_limit_rows(state)
         soft = self._limit_soft
         # Rows lower twist, upper twist, swing: their axes and the terms of _one_sided.
-        slots = [(axis, self._one_sided_terms(rows[C], rows[m], h, use_bias, soft))
-                 for axis, C, m in (("Jt", "C_lo", "m_twist"), ("-Jt", "C_hi", "m_twist"), ("Js", "C_swing", "m_swing"))]
+        slots = [(axis, self._one_sided_terms(rows[C], rows[m], h, use_bias, soft)) for axis, C, m in
+                 (("Jt", "C_lo", "m_twist"), ("-Jt", "C_hi", "m_twist"), ("Js", "C_swing", "m_swing"))]
         act = self._active(state, self.gs_limit) if state.joint_broken[:, self.gs_limit].any() else None
         for color in self.colors:
             whole = color["gs_slice"]

@@ -22,7 +22,6 @@ Two integration paths, chosen per spring at build time:
 
 from __future__ import annotations
 
-
 import numpy as np
 
 from ..coloring import color_pairs
