@@ -42,7 +42,7 @@ from .coloring import color_pairs
 from .math3d import (EX, EY, EZ, clamp_norm, cross, quat_rotate_inv, dot, mat_vec, quat_conj, quat_mul,
                      quat_rotate, sym3_solve, quat_to_matrix, world_inv_inertia)
 from .joint_projection import project_joints
-from .soft import Softness, implicit_spring_impulse_from, implicit_spring_terms, make_soft
+from .soft import implicit_spring_impulse_from, implicit_spring_terms, make_soft, select_softness
 from .state import Event
 
 HINGE, BALL, FIXED = 0, 1, 2
@@ -527,18 +527,12 @@ class JointSet:
             self._tree_soft = rigid
             t.geometric_weight = 1.0 if geo_free else None
         else:
-            o = on[..., None]
-            self._tree_soft = Softness(np.where(o, soft.bias_rate, rigid.bias_rate),
-                                       np.where(o, soft.mass_scale, rigid.mass_scale),
-                                       np.where(o, soft.impulse_scale, rigid.impulse_scale))
+            self._tree_soft = select_softness(on[..., None], soft, rigid)
             weight = np.where(on, float(s.joint_geometric_stiffness), float(geo_free))
             t.geometric_weight = weight if weight.any() else None
         in_loop = self._loop_tree_joints
         if in_loop is not None:
-            base, o = self._tree_soft, in_loop[None, :, None]
-            self._tree_soft = Softness(np.where(o, loop.bias_rate, base.bias_rate),
-                                       np.where(o, loop.mass_scale, base.mass_scale),
-                                       np.where(o, loop.impulse_scale, base.impulse_scale))
+            self._tree_soft = select_softness(in_loop[None, :, None], loop, self._tree_soft)
             w = t.geometric_weight
             w = np.zeros(on.shape) if w is None else np.broadcast_to(np.asarray(w, dtype=float), on.shape)
             w = np.where(in_loop, float(s.joint_geometric_stiffness), w)

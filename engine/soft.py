@@ -17,6 +17,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numpy as np
+
 
 @dataclass(frozen=True)
 class Softness:
@@ -35,6 +37,12 @@ def make_soft(hertz: float, zeta: float, h: float) -> Softness:
     a2 = h * omega * a1
     a3 = 1.0 / (1.0 + a2)
     return Softness(omega / a1, a2 * a3, a3)
+
+
+def select_softness(mask, a: Softness, b: Softness) -> Softness:
+    """Each of a's terms where ``mask``, b's elsewhere (arrays of mask's shape)."""
+    return Softness(np.where(mask, a.bias_rate, b.bias_rate), np.where(mask, a.mass_scale, b.mass_scale),
+                    np.where(mask, a.impulse_scale, b.impulse_scale))
 
 
 def implicit_spring_impulse(k, c, h, error, error_rate, inv_mass):
