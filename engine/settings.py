@@ -43,6 +43,29 @@ CONTACT_COLORINGS = ("ordered", "greedy")
 ACCURATE = {"substeps": 16, "joint_hertz": math.inf, "joint_limits_in_tree": True, "joint_projection_slop": 0.0002,
             "free_joint_geometric_stiffness": False}
 
+#: Settings that keep a ragdoll's joints closed on the ground at the default
+#: substeps (``Settings(**CLOSED_JOINTS)``): rigid tree joints with their limits
+#: in the tree solve, the 0.2 mm post-stabilisation of ``ACCURATE``, and the
+#: contacts of articulations on static bodies solved with the articulation's
+#: response (``articulated_contacts``), so that they do not fight the rigid
+#: joints. For ragdolls that must look right (animation) at a fraction of
+#: ACCURATE's cost. Measured against the defaults (README, "Default settings
+#: and why"): benchmarks.accuracy's ragdoll under random torques keeps its
+#: joint anchors within 0.2 mm (defaults 4.0 cm) at 1.65 wall s per simulated
+#: s (defaults 0.99, ACCURATE 4.63), but its limits still give by 0.71 rad
+#: (ACCURATE 0.011; with 8 substeps 0.063 at 2.96); every ragdoll case of
+#: ``benchmarks.stability --quick`` holds 0.2 mm (drops, the 100 m/s impact,
+#: dt 1/30, 2,000 steps of maximum torques, a pile of 10; defaults 2-4 cm),
+#: but dropped ragdolls land deeper (4.8 cm against 3.2) and still move at
+#: 0.082 m/s 3 s after landing (defaults 0.042). Not for articulations with
+#: loops: limits in the tree leave their loop rows to Gauss-Seidel, and the
+#: 10x10 sphere grid opened by 7.5 cm in 2 s (defaults 0.91 cm), the chain
+#: pinned at both ends by 1.9 cm (0.09 cm). The step costs 1.8 times the
+#: defaults' for one ragdoll on the ground and 2.1 times at 64 worlds, and
+#: its contact response matrices take 190-210 KB per world (defaults 64-91).
+CLOSED_JOINTS = {"joint_hertz": math.inf, "joint_limits_in_tree": True, "joint_projection_slop": 0.0002,
+                 "articulated_contacts": True}
+
 
 @dataclass(frozen=True)
 class Settings:

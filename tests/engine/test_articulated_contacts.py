@@ -70,13 +70,14 @@ def test_response_keeps_every_joint_and_gives_a_delassus_matrix():
 
 def test_rigid_ragdoll_lands_and_rests_with_its_joints_closed():
     """The 1 m upright drop with rigid joints at 4 substeps: with the
-    articulation's response the joints stay within 1 mm (the 0.2 mm slop),
+    articulation's response (``engine.CLOSED_JOINTS``: RIGID and
+    articulated_contacts) the joints stay within 1 mm (the 0.2 mm slop),
     nothing sinks 5 cm, and over the last half second of 3 s nothing moves
     faster than 1 cm/s (measured: 0.2 mm, 2.7 cm, under 1 mm/s). The same
     joints with the contacts solved body by body still chatter there
     (measured 0.47 m/s): a contact stops the foot alone and the joints hand
     the impulse back."""
-    _, _, anchor, pen, late = _drop(1, 3.0, articulated_contacts=True, **RIGID)
+    _, _, anchor, pen, late = _drop(1, 3.0, **e.CLOSED_JOINTS)
     assert anchor < 1e-3
     assert pen < 0.05
     assert late < 0.01
