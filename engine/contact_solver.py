@@ -102,6 +102,7 @@ class _Block:
         self.mn, self.mt1, self.mt2, self.mu = cr.mn[rows], cr.mt1[rows], cr.mt2[rows], cr.mu[rows]
         self.valid = cr.valid[rows]
         self.paired = cr.dyn_a[rows] & cr.dyn_b[rows]
+        self.free = ~cr.jointed[rows]  # rows whose bodies carry no joint
         self.ka, self.kb = cr.ka[rows], cr.kb[rows]
         self.dyn_a, self.dyn_b = cr.dyn_a[rows], cr.dyn_b[rows]
         # For the current separation: body-local lever arms, start positions and separations.
@@ -197,6 +198,8 @@ class ContactRows:
         self.thesis = s.solver == "thesis"
         self.max_push_out = s.max_push_out
         self.slop = s.linear_slop
+        self.load_stiffening = s.contact_load_stiffening
+        self.g_mag = float(np.linalg.norm(g))
         if s.contact_coloring == "greedy":
             priority, first_fit = _top_down_priority(point, valid, g), True
         else:
@@ -292,6 +295,26 @@ class ContactRows:
         taken[articulated.rows] = True
         self.colors = [r for r in (rows[~taken[rows]] for rows in self.colors) if r.size]
 
+    def _bias_rate(self, c, lam_n, h):
+        """Position-bias rate (1/s) of each point of block ``c``: the soft
+        contact's, raised for points between bodies without joints that carry
+        more than the weight of their own effective mass.
+
+        A soft point rests where its spring m_n ω² (m_n its effective mass)
+        holds its load F: at F / (m_n ω²), as deep as the load is heavy next
+        to m_n, and a column of light boxes sags at every joint and slowly
+        buckles (the stack of 20 of 1 kg boxes: its bottom 4.4 mm deep). The
+        bias rate, which sets that spring, is multiplied by the load factor
+        F / (m_n g) (F = λ_n / h from the impulse the point holds), clipped
+        to [1, ``contact_load_stiffening``]: a box alone on the ground keeps
+        1 (its four corners each carry about the weight of their m_n)."""
+        rate = self.soft.bias_rate
+        cap = self.load_stiffening
+        if cap <= 1.0 or self.g_mag == 0.0 or not c.free.any():
+            return rate
+        load = lam_n / (h * self.g_mag * np.maximum(c.mn, 1e-30))
+        return rate * np.where(c.free[:, None], np.clip(load, 1.0, cap), 1.0)
+
     def _solve_block(self, state, rows, c, h, use_bias):
         """One Gauss-Seidel sweep over the rows of one colour: normal points,
         then friction points. Per point, with Ċ = v_rel·n and s the current
@@ -317,16 +340,16 @@ class ContactRows:
         valid = c.valid
         P = valid.shape[1]
         open_ = sep > 0
+        # The rows' impulses, gathered once and written back after the sweep.
+        lam_n, max_lam_n = self.lam_n.take(rows, 0), self.max_lam_n.take(rows, 0)
         if use_bias and not self.thesis:
             pen = np.minimum(sep + self.slop, 0.0)
-            bias = np.where(open_, sep / h, np.maximum(soft.bias_rate * pen, -self.max_push_out))
+            bias = np.where(open_, sep / h, np.maximum(self._bias_rate(c, lam_n, h) * pen, -self.max_push_out))
             gain = -c.mn * np.where(open_, 1.0, soft.mass_scale)
             isc = np.where(open_, 0.0, soft.impulse_scale)
         else:
             bias = np.where(open_, sep / h, 0.0)
             gain, isc = -c.mn, None
-        # The rows' impulses, gathered once and written back after the sweep.
-        lam_n, max_lam_n = self.lam_n.take(rows, 0), self.max_lam_n.take(rows, 0)
         s_close = self.s_close.take(rows, 0)
         # Closing speeds at the row's start, before its own points'
         # impulses (a face landing flat records one speed at all four),

@@ -250,8 +250,10 @@ class Settings:
         0.006 m/s), the 100:1:100 sandwich sooner (0.001 against 0.024 m/s
         after 1 s), the pile of ragdolls 4.5 cm deep against 5.2 (joints
         2.8 cm against 1.9). But a change crosses a chain swept in two
-        colours only two rows per sweep: the stack of 20, which slowly
-        buckles ordered (0.11 m/s by 10 s), falls over (3 m/s), and piles
+        colours only two rows per sweep: before the contacts' load
+        stiffening the stack of 20, which slowly buckled ordered (0.11 m/s
+        by 10 s), fell over (3 m/s; with it both rest, greedy at 0.0093 m/s
+        and 8.6 times cheaper, ordered at 0.0084), and piles
         pushed apart move faster: 20 boxes created inside each other fling
         one at 4.5 m/s beyond its fall (ordered 1.2; bound 2), the
         overlapping pyramid at 1.7 m/s (0.46). Scenes whose rows all have a
@@ -259,6 +261,21 @@ class Settings:
         the same either way.
     contact_hertz, contact_damping_ratio: softness of contacts; the contact
         stiffness used is min(contact_hertz, substep rate / 4) as in Box2D v3.
+    contact_load_stiffening: the largest factor on the position-bias rate (the
+        spring) of a contact point between bodies without joints that carries
+        more than the weight of its own effective mass, raised in proportion
+        to that load (``ContactRows._bias_rate``; 1 turns it off). A soft
+        point's spring is its effective mass times ω², so a column of light
+        boxes sags at every contact under the load above it and slowly
+        buckles: the stack of 20 1 kg boxes moved at 0.11 m/s by 10 s
+        without it, under 0.01 m/s with 1.25 (full 10 s runs of
+        ``benchmarks.stability``), with the 10-row pyramid and the 100:1:100
+        sandwich still at rest (0.010 and 0.023 m/s from their rest times).
+        Larger factors fail where a light body carries a heavy one: at 1.5
+        the sandwich's 1 kg box rocked at 0.26 m/s (its points carry 100
+        times their effective mass), and contacts stiffer by 1.44 (72 Hz)
+        everywhere did the same. Rows on jointed bodies (ragdolls, the
+        Balance task) keep the plain spring.
     articulated_contacts: solve the contacts of articulations on static
         bodies (a ragdoll on the ground) in contact space with the
         articulation's response through the joint tree
@@ -315,6 +332,7 @@ class Settings:
     contact_hertz: float = 60.0
     articulated_contacts: bool = False
     contact_damping_ratio: float = 10.0
+    contact_load_stiffening: float = 1.25
     joint_max_push_out: float = 3.0
     joint_max_angular_push_out: float = 10.0
     max_push_out: float = 3.0
@@ -373,6 +391,9 @@ class Settings:
             v = getattr(self, name)
             if not (v >= 0 and math.isfinite(v)):
                 raise ValueError(f"settings: {name} must be a finite number >= 0, got {v!r}")
+        if not (self.contact_load_stiffening >= 1 and math.isfinite(self.contact_load_stiffening)):
+            raise ValueError(f"settings: contact_load_stiffening must be a finite number >= 1 (1: off), got "
+                             f"{self.contact_load_stiffening!r}")
 
     @property
     def substep_dt(self) -> float:

@@ -286,6 +286,56 @@ def test_rows_on_jointed_bodies_take_no_second_relax_pass():
     assert not np.array_equal(states[0].velocity[:, box], states[1].velocity[:, box])
 
 
+@pytest.mark.parametrize("stiffening", [1.0, 1.25])
+def test_resting_depth_is_the_load_over_the_soft_spring(stiffening):
+    """A soft contact point rests where its spring, s m_n ω² (m_n its effective
+    mass, ω = 2π 60 Hz, s the load stiffening), holds its load F: at
+    F / (s m_n ω²). A 1 kg box alone on the ground (each corner carrying the
+    weight of its own m_n: s = 1) sinks g/ω² = 0.069 mm with or without the
+    stiffening; the bottom of a stack of five carries five times that and
+    sinks 5 g/ω² without it, 5 g/(1.25 ω²) with it; the box-on-box points
+    (m_n halved, so twice as deep) likewise."""
+    b = e.SceneBuilder(contact_load_stiffening=stiffening)
+    b.add_ground()
+    for i in range(5):
+        b.add_body(f"box{i}", e.Box((0.25, 0.25, 0.25)), mass=1.0, position=(0, 0, 0.25 + i * 0.501))
+    b.add_body("alone", e.Box((0.25, 0.25, 0.25)), mass=1.0, position=(3.0, 0, 0.25))
+    model = b.build()
+    state = model.initial_state(1)
+    for _ in range(120):
+        e.step(model, state)
+    z = state.position[0, 1:, 2]
+    unit = G / (2 * math.pi * 60.0) ** 2  # g / ω², m
+    s = min(stiffening, 1.25)
+    assert 0.25 - z[5] == pytest.approx(unit, rel=0.01)
+    assert 0.25 - z[0] == pytest.approx(5 * unit / s, rel=0.02)
+    for k in range(1, 5):  # the interface under box k carries 5 - k boxes
+        assert 0.5 - (z[k] - z[k - 1]) == pytest.approx(2 * (5 - k) * unit / s, rel=0.02)
+
+
+def test_rows_on_jointed_bodies_keep_the_plain_spring():
+    # The load stiffening acts on rows between bodies without joints: a
+    # ragdoll beside a stack steps bit for bit as with it off; the stack does not.
+    from engine.humanoid import add_humanoid
+
+    states = []
+    for stiffening in (1.0, 1.25):
+        b = e.SceneBuilder(contact_load_stiffening=stiffening)
+        b.add_ground()
+        add_humanoid(b, position=(0, 0, 1.0))
+        for i in range(2):
+            b.add_body(f"box{i}", e.Box((0.2, 0.2, 0.2)), mass=1.0, position=(2.0, 0, 0.2 + 0.401 * i))
+        model = b.build()
+        state = model.initial_state(1)
+        for _ in range(60):
+            e.step(model, state)
+        states.append(state)
+    boxes = states[0].position.shape[1] - 2
+    assert np.array_equal(states[0].position[:, :boxes], states[1].position[:, :boxes])
+    assert np.array_equal(states[0].angular_velocity[:, :boxes], states[1].angular_velocity[:, :boxes])
+    assert not np.array_equal(states[0].position[:, boxes:], states[1].position[:, boxes:])
+
+
 @pytest.mark.parametrize("target", ["ground", "thin_box"])
 def test_capsule_at_100_m_per_s_does_not_pass_through(target):
     b = e.SceneBuilder(gravity=None)

@@ -123,16 +123,11 @@ FAST_XFAIL = {
 #: bound is a maximum over the run (the rest bound over [rest_time, end]), so a miss within
 #: the quick duration is a miss of the full duration too.
 SLOW_XFAIL = {
-    "stack_20": "measured (full run): not at rest: 0.11 m/s (10 km out 0.12) > 0.05 m/s between 2 and 10 s (0.010 m/s over "
-                "2-3 s): the column buckles slowly (at 60 Hz a contact's rocking stiffness, about 4700 "
-                "N·m/rad, is below the about 5400 a column of 20 such boxes needs; 8 substeps at 120 Hz "
-                "hold it; so do free-body contacts at 72 Hz, which set the pyramid and the sandwich rocking)",
     "ragdoll_pile_10": "measured (full run): anchor error 3.0 cm > 1 cm, penetration 6.2 cm > 5 cm (10 km out "
                        "the same; quick run: 2.0 cm and 5.5 cm)",
     "large_dt_ragdoll": "measured (quick run): anchor error 4.0 cm > 1 cm (the joint post-stabilisation's slop), "
                         "penetration 4.0 cm > 3 cm",
 }
-SLOW_XFAIL["stack_20_far"] = SLOW_XFAIL["stack_20"]
 SLOW_XFAIL["ragdoll_pile_10_far"] = SLOW_XFAIL["ragdoll_pile_10"]
 
 
