@@ -12,7 +12,6 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from engine import math3d
 from ragdoll_env.baselines import StandingPD, ZeroTorque
 from ragdoll_env.tasks.balance import lowest_points
 
