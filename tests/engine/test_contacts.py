@@ -264,14 +264,17 @@ def test_stack_of_five_boxes_comes_to_rest_with_a_second_relax_pass(passes, boun
         assert fastest < bound
 
 
-def test_rows_on_jointed_bodies_take_no_second_relax_pass():
-    # A ragdoll's contacts (all on jointed bones) are solved exactly as with
-    # no further pass, bit for bit; a box dropped beside it is not.
+@pytest.mark.parametrize("setting, off, on", [("free_contact_relax_passes", 0, 1),
+                                               ("contact_load_stiffening", 1.0, 1.25)])
+def test_rows_on_jointed_bodies_step_as_without_the_free_row_settings(setting, off, on):
+    # The further relax pass and the load stiffening act on rows between
+    # bodies without joints: a ragdoll's contacts (all on jointed bones) are
+    # solved exactly as without them, bit for bit; a box dropped beside it is not.
     from engine.humanoid import add_humanoid
 
     states = []
-    for passes in (0, 1):
-        b = e.SceneBuilder(free_contact_relax_passes=passes)
+    for value in (off, on):
+        b = e.SceneBuilder(**{setting: value})
         b.add_ground()
         add_humanoid(b, position=(0, 0, 1.0))
         b.add_body("box", e.Box((0.2, 0.2, 0.2)), mass=1.0, position=(2.0, 0, 0.5))
@@ -311,29 +314,6 @@ def test_resting_depth_is_the_load_over_the_soft_spring(stiffening):
     assert 0.25 - z[0] == pytest.approx(5 * unit / s, rel=0.02)
     for k in range(1, 5):  # the interface under box k carries 5 - k boxes
         assert 0.5 - (z[k] - z[k - 1]) == pytest.approx(2 * (5 - k) * unit / s, rel=0.02)
-
-
-def test_rows_on_jointed_bodies_keep_the_plain_spring():
-    # The load stiffening acts on rows between bodies without joints: a
-    # ragdoll beside a stack steps bit for bit as with it off; the stack does not.
-    from engine.humanoid import add_humanoid
-
-    states = []
-    for stiffening in (1.0, 1.25):
-        b = e.SceneBuilder(contact_load_stiffening=stiffening)
-        b.add_ground()
-        add_humanoid(b, position=(0, 0, 1.0))
-        for i in range(2):
-            b.add_body(f"box{i}", e.Box((0.2, 0.2, 0.2)), mass=1.0, position=(2.0, 0, 0.2 + 0.401 * i))
-        model = b.build()
-        state = model.initial_state(1)
-        for _ in range(60):
-            e.step(model, state)
-        states.append(state)
-    boxes = states[0].position.shape[1] - 2
-    assert np.array_equal(states[0].position[:, :boxes], states[1].position[:, :boxes])
-    assert np.array_equal(states[0].angular_velocity[:, :boxes], states[1].angular_velocity[:, :boxes])
-    assert not np.array_equal(states[0].position[:, boxes:], states[1].position[:, boxes:])
 
 
 @pytest.mark.parametrize("target", ["ground", "thin_box"])
