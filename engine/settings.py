@@ -275,7 +275,10 @@ class Settings:
         the sandwich's 1 kg box rocked at 0.26 m/s (its points carry 100
         times their effective mass), and contacts stiffer by 1.44 (72 Hz)
         everywhere did the same. Rows on jointed bodies (ragdolls, the
-        Balance task) keep the plain spring.
+        Balance task) keep the plain spring, and so does every row without a
+        relax solve (relax_iterations 0), which would keep the stiffer bias's
+        velocity: the 10-box stack of ``benchmarks.accuracy`` then sank 0.4 m
+        (2.1 mm with the plain spring).
     articulated_contacts: solve the contacts of articulations on static
         bodies (a ragdoll on the ground) in contact space with the
         articulation's response through the joint tree
