@@ -304,7 +304,7 @@ class ContactRows:
 
         A soft point rests where its spring m_n ω² (m_n its effective mass)
         holds its load F: at F / (m_n ω²), as deep as the load is heavy next
-        to m_n, and a column of light boxes sags at every joint and slowly
+        to m_n, and a column of light boxes sags at every contact and slowly
         buckles (the stack of 20 of 1 kg boxes: its bottom 4.4 mm deep). The
         bias rate, which sets that spring, is multiplied by the load factor
         F / (m_n g) (F = λ_n / h from the impulse the point holds), clipped
