@@ -103,6 +103,7 @@ class _Block:
         self.valid = cr.valid[rows]
         self.paired = cr.dyn_a[rows] & cr.dyn_b[rows]
         self.free = ~cr.jointed[rows]  # rows whose bodies carry no joint
+        self.any_free = bool(self.free.any())
         self.ka, self.kb = cr.ka[rows], cr.kb[rows]
         self.dyn_a, self.dyn_b = cr.dyn_a[rows], cr.dyn_b[rows]
         # For the current separation: body-local lever arms, start positions and separations.
@@ -270,12 +271,11 @@ class ContactRows:
         """Current separation (rows, points) of every row, m."""
         return self._separation(state, np.arange(self.w.size))
 
-    def free_colors(self, unjointed):
+    def free_colors(self):
         """The colours restricted to rows whose two bodies are static or carry
-        no joint (``unjointed``: (num_bodies,) bool), empty colours dropped;
-        computed once per step."""
+        no joint (``~jointed``), empty colours dropped; computed once per step."""
         if self._free_colors is None:
-            free = unjointed[self.a] & unjointed[self.b]
+            free = ~self.jointed
             self._free_colors = [r for r in (rows[free[rows]] for rows in self.colors) if r.size]
         return self._free_colors
 
@@ -312,7 +312,7 @@ class ContactRows:
         1 (its four corners each carry about the weight of their m_n)."""
         rate = self.soft.bias_rate
         cap = self.load_stiffening
-        if cap <= 1.0 or self.g_mag == 0.0 or not c.free.any():
+        if cap <= 1.0 or self.g_mag == 0.0 or not c.any_free:
             return rate
         load = lam_n / (h * self.g_mag * np.maximum(c.mn, 1e-30))
         return rate * np.where(c.free[:, None], np.clip(load, 1.0, cap), 1.0)

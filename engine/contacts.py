@@ -42,8 +42,6 @@ class ContactSet:
             for body in (j.parent, j.child):
                 if body is not None and body >= 0:
                     self.jointed[body] = True
-        # Static or without a joint: rows between such bodies take the further relax passes.
-        self.unjointed = ~(self.jointed & model.dynamic)
         if "self_collision" not in fx:
             excluded |= _same_articulation_pairs(builder)
         group = np.array([b.collision_group for b in builder.bodies], dtype=np.int64)
@@ -163,7 +161,7 @@ class ContactSet:
         """One more relax pass over the rows whose bodies carry no joints
         (``Settings.free_contact_relax_passes``)."""
         if self.rows is not None:
-            self.rows.solve(model, state, h, use_bias=False, colors=self.rows.free_colors(self.unjointed))
+            self.rows.solve(model, state, h, use_bias=False, colors=self.rows.free_colors())
 
     def end_step(self, model, state, h, events):
         if self.rows is None:
