@@ -129,6 +129,9 @@ SLOW_XFAIL = {
                         "penetration 4.0 cm > 3 cm",
 }
 SLOW_XFAIL["ragdoll_pile_10_far"] = SLOW_XFAIL["ragdoll_pile_10"]
+SLOW_XFAIL["ragdoll_drops_random"] = ("measured (full run): anchor error 4.0 cm > 1 cm (the joint post-stabilisation's "
+                                      "slop), not at rest: 0.055 m/s after 5 s (a limb twitching against its "
+                                      "rigid limit; limit_hertz 60: 0.003 m/s)")
 
 
 @pytest.mark.parametrize("name", list(FAST))
