@@ -43,7 +43,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .math3d import cross, quat_exp_integrate, quat_rotate
+from .math3d import cross, inverse_or_nan, quat_exp_integrate, quat_rotate
 from .state import State
 
 #: m: contact points closer than this to touching add to the projection's metric.
@@ -190,7 +190,7 @@ def _metric(tree, model, state, weight, worlds):
     if bad.any():
         M[bad] = np.eye(6)
     M_inv = np.zeros((worlds.size, N, 6, 6))
-    M_inv[:, tree.t.bodies] = np.linalg.inv(M)
+    M_inv[:, tree.t.bodies] = inverse_or_nan(M)
     return M, M_inv
 
 

@@ -23,8 +23,8 @@ from __future__ import annotations
 import numpy as np
 
 from .joints import BALL, FIXED, HINGE
-from .math3d import (EX, EY, EZ, clamp_norm, cross, dot, mat_vec, quat_conj, quat_mul, quat_rotate, sym3_inverse,
-                     world_inv_inertia)
+from .math3d import (EX, EY, EZ, clamp_norm, cross, dot, inverse_or_nan, mat_vec, quat_conj, quat_mul, quat_rotate,
+                     sym3_inverse, world_inv_inertia)
 
 
 # Entries of -[r]× = [[0, r_z, -r_y], [-r_z, 0, r_x], [r_y, -r_x, 0]] in the
@@ -50,8 +50,8 @@ def _mtm(A, B):
 
 
 def _inv_definite(A):
-    """Inverse of definite (..., n, n) matrices."""
-    return np.linalg.inv(A)
+    """Inverse of definite (..., n, n) matrices (``math3d.inverse_or_nan``)."""
+    return inverse_or_nan(A)
 
 
 def _unique_splits(targets):
@@ -614,7 +614,10 @@ class _TreeSolver(_Rows):
         bad = ~np.isfinite(S).all(axis=(1, 2))
         if bad.any():
             S[bad] = np.eye(m)
-        x_used = np.linalg.solve(S, rhs)  # (W, m, 1)
+        try:
+            x_used = np.linalg.solve(S, rhs)  # (W, m, 1)
+        except np.linalg.LinAlgError:  # singular in floating point: a diverging world, NaN as above
+            x_used = np.matmul(inverse_or_nan(S), rhs)
         x_t = (y - np.matmul(X, x_used[:, None]))[..., 0]
         x_l = np.zeros((W, nl * 6))
         x_l[:, used] = x_used[..., 0]

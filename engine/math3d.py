@@ -312,3 +312,19 @@ def world_inv_inertia(q: np.ndarray, inv_inertia_body: np.ndarray, r: np.ndarray
             out[..., i, j] = v
             out[..., j, i] = v
     return out
+
+
+def inverse_or_nan(A: np.ndarray) -> np.ndarray:
+    """``np.linalg.inv`` of (..., n, n) matrices, NaN for any that is singular
+    in floating point. Such a matrix comes from a world already diverging
+    (bodies 1e17 m apart): its inverse turns that world non-finite, which the
+    step reports (SimulationError naming the world) instead of stopping every
+    world with LinAlgError."""
+    try:
+        return np.linalg.inv(A)
+    except np.linalg.LinAlgError:
+        sign, _ = np.linalg.slogdet(A)
+        bad = sign == 0
+        out = np.linalg.inv(np.where(bad[..., None, None], np.eye(A.shape[-1]), A))
+        out[bad] = np.nan
+        return out

@@ -26,7 +26,9 @@ from engine import (
     simulate,
     step,
 )
+from engine import Settings
 from engine import diagnostics as D
+from engine.math3d import inverse_or_nan
 from engine.effects.gravity import Gravity
 from engine.math3d import quat_from_axis_angle, quat_normalize, quat_rotate_inv, quat_to_matrix
 
@@ -611,3 +613,36 @@ def test_huge_but_finite_state_is_not_reported_as_nonfinite():
     assert state.nonfinite_worlds().tolist() == []
     state.velocity[2, 0, 1] = np.nan
     assert state.nonfinite_worlds().tolist() == [2]
+
+
+def test_inverse_or_nan_marks_only_the_singular_matrices():
+    A = np.stack([np.diag([2.0, 4.0, 5.0]), np.zeros((3, 3)), np.ones((3, 3))])
+    inv = inverse_or_nan(A)
+    np.testing.assert_allclose(inv[0], np.diag([0.5, 0.25, 0.2]))
+    assert np.isnan(inv[1:]).all()
+
+
+def test_a_diverging_ragdoll_is_reported_not_a_linalg_error():
+    """The humanoid under random torques at dt 1/30 with 1 substep and no
+    relax solve diverges (bodies 1e17 m apart by step 40); a joint pivot then
+    turns singular in floating point. The step reports that world as
+    non-finite (SimulationError naming world and step), as for any other
+    divergence, instead of stopping with numpy's LinAlgError; without the
+    check the other world of the batch steps on unharmed."""
+    from benchmarks import accuracy
+
+    model = accuracy._ragdoll_model(Settings(dt=1 / 30, substeps=1, relax_iterations=0))
+    torques = accuracy._ragdoll_torques(model, 3.0)
+    per = round(accuracy.SAMPLE_DT * 30)
+    s = model.initial_state(2)
+    with pytest.raises(SimulationError) as info:
+        for k in range(90):
+            motor = np.stack([torques[k // per], np.zeros(model.num_actuators)])
+            step(model, s, Control(motor=motor))
+    assert info.value.worlds == (0,)
+    assert "world 0" in str(info.value)
+    unchecked = model.with_settings(check_finite=False)
+    s = unchecked.initial_state(2)
+    for k in range(90):
+        step(unchecked, s, Control(motor=np.stack([torques[k // per], np.zeros(model.num_actuators)])))
+    assert s.nonfinite_worlds().tolist() == [0]
