@@ -198,6 +198,8 @@ class JointSet:
             color["twist_limit"], color["swing_limit"] = np.concatenate(order[:2]), np.concatenate(order[1:])
             gs_limit.append(np.concatenate(order))
         self.gs_limit = np.concatenate(gs_limit).astype(np.int64) if gs_limit else np.zeros(0, dtype=np.int64)
+        # Each Gauss-Seidel limit row's articulation (tree component), -1 outside a tree.
+        self._gs_limit_component = np.full(self.gs_limit.size, -1, dtype=np.int64)
         if self.tree is not None:
             # Articulations that Gauss-Seidel joint rows act on (loop-closing
             # joints, limits outside the tree): their tree joints stay soft.
@@ -214,6 +216,10 @@ class JointSet:
             exact_loop[t.body_component[self.child[in_loop_solve]]] = True
             exact_loop[-1] = False
             self._loop_tree_joints = exact_loop[t.component] if exact_loop.any() else None
+            tree_pos = np.full(J, -1, dtype=np.int64)
+            tree_pos[t.joints] = np.arange(t.joints.size)
+            pos = tree_pos[self.gs_limit]
+            self._gs_limit_component = np.where(pos >= 0, t.component[np.maximum(pos, 0)], -1)
             t.gs_touched = np.zeros(t.num_components + 1, dtype=bool)
             t.gs_touched[t.body_component[self.parent[gs_rows]]] = True
             t.gs_touched[t.body_component[self.child[gs_rows]]] = True
@@ -469,6 +475,10 @@ class JointSet:
         free_hz = s.free_joint_hertz if math.isinf(s.free_joint_hertz) else min(s.free_joint_hertz, cap)
         self._soft = make_soft(gs_hz, s.gs_joint_damping_ratio, h)
         self._limit_soft = make_soft(s.limit_hertz, s.gs_joint_damping_ratio, h)
+        self._limit_zone = None
+        if (s.limit_soft_margin > 0 and s.relax_iterations > 0 and s.solver != "thesis" and touching is not None
+                and self.gs_limit.size):
+            self._limit_zone = self._soft_limit_zone(make_soft(tree_hz, s.joint_damping_ratio, h), touching)
         self._substeps_done = 0
         self._load_before = None
         if s.solver == "thesis":
@@ -485,6 +495,28 @@ class JointSet:
             # Impulses summed over the step's substeps: the load a joint carries.
             self._lin_sum = np.zeros(state.joint_linear_impulse.shape)
             self._ang_sum = np.zeros(state.joint_linear_impulse.shape[:2])
+
+    def _soft_limit_zone(self, soft, touching):
+        """(softness, rows) of the step's Gauss-Seidel limit rows that are soft
+        while violated by less than ``limit_soft_margin``: the rows of
+        articulations with a contact this step (``touching``, (W, bodies)),
+        whose tree joints are soft (``joint_hertz``), take that softness; None
+        if no row does. See ``Settings.limit_soft_margin``."""
+        comp = self._gs_limit_component
+        if self.tree is None or not (comp >= 0).any():
+            return None
+        rows = self._components_in_contact(touching)[:, comp]  # comp -1 reads the last column, False
+        return (soft, rows) if rows.any() else None
+
+    def _components_in_contact(self, touching):
+        """(W, articulations + 1) bool: the articulations with a body in
+        ``touching`` (W, bodies); the last column (no articulation) False."""
+        t = self.tree
+        hit = np.zeros((touching.shape[0], t.num_components + 1), dtype=bool)
+        w, body = np.nonzero(touching)
+        hit[w, t.body_component[body]] = True
+        hit[:, -1] = False
+        return hit
 
     def _choose_tree_softness(self, soft, rigid, touching, loop):
         """Each tree joint's softness for the step: an articulation that a
@@ -505,10 +537,9 @@ class JointSet:
         (rigid, with geometric stiffness: 0.03% and under 1%)."""
         t = self.tree
         s = self.settings
-        hit = np.tile(t.gs_touched, (1 if touching is None else touching.shape[0], 1))  # (W or 1, articulations + 1)
+        hit = t.gs_touched[None]  # (W or 1, articulations + 1)
         if touching is not None:
-            w, body = np.nonzero(touching)
-            hit[w, t.body_component[body]] = True
+            hit = hit | self._components_in_contact(touching)
         on = hit[:, t.component]  # (W or 1, tree joints): soft
         if self.loop_rows is not None:
             # Exact loop rows take the softness of their articulation's tree
@@ -797,9 +828,22 @@ class JointSet:
         where the softness has none (rigid limits, the relax solve)."""
         bias_rate, mass_scale, impulse_scale = self._soft_terms(use_bias, soft)
         open_ = C > 0.0
+        if use_bias and self._limit_zone is not None:
+            # Within the margin of its bound a violated row of an articulation
+            # in contact is as soft as its tree joints (Settings.limit_soft_margin).
+            zs, rows = self._limit_zone
+            zone = rows & ~open_ & (C > -self.settings.limit_soft_margin)
+            bias_rate = np.where(zone, zs.bias_rate, bias_rate)
+            mass_scale = np.where(zone, zs.mass_scale, mass_scale)
+            impulse_scale = np.where(zone, zs.impulse_scale, impulse_scale)
         bias = np.where(open_, C / h, np.maximum(bias_rate * C, -self.settings.joint_max_angular_push_out))
-        gain = -m if mass_scale == 1.0 else -m * np.where(open_, 1.0, mass_scale)
-        return gain, bias, None if impulse_scale == 0.0 else np.where(open_, 0.0, impulse_scale)
+        if np.ndim(mass_scale) == 0 and mass_scale == 1.0:
+            gain = -m
+        else:
+            gain = -m * np.where(open_, 1.0, mass_scale)
+        if np.ndim(impulse_scale) == 0 and impulse_scale == 0.0:
+            return gain, bias, None
+        return gain, bias, np.where(open_, 0.0, impulse_scale)
 
     @staticmethod
     def _one_sided(wa, wb, ia, ib, axis, gain, bias, isc, act, lam):

@@ -255,6 +255,7 @@ def test_empty_scene():
     (dict(joint_limits_in_tree=True, limit_hertz=120.0), "joint_limits_in_tree solves rigid limits"),
     (dict(loop_joint_hertz=0.0), "loop_joint_hertz must be > 0"),
     (dict(contact_load_stiffening=0.5), "contact_load_stiffening must be a finite number >= 1"),
+    (dict(limit_soft_margin=-0.01), "limit_soft_margin must be a finite number >= 0"),
     (dict(loop_joint_damping_ratio=-1.0), "loop_joint_damping_ratio must be a finite number >= 0"),
     (dict(joint_limits_in_tree=True, joint_solver="gauss_seidel"), "joint_limits_in_tree needs joint_solver 'tree'"),
     (dict(articulated_contacts=True, solver="thesis"), "articulated_contacts needs joint_solver 'tree' and solver 'soft_step'"),

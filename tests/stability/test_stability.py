@@ -116,22 +116,19 @@ FAST = {
 #: measured misses of the fast part (python -m pytest tests/stability, this checkout)
 FAST_XFAIL = {
     "large_dt_ragdoll": "measured: anchor error 4.0 cm > 1 cm (held at the joint post-stabilisation's 4 cm slop; "
-                        "5.8 cm without), penetration 4.0 cm > 3 cm",
+                        "5.8 cm without), penetration 3.7 cm > 3 cm",
 }
 
 #: measured misses of the full scenes: from ``python -m benchmarks.stability --quick``; every
 #: bound is a maximum over the run (the rest bound over [rest_time, end]), so a miss within
 #: the quick duration is a miss of the full duration too.
 SLOW_XFAIL = {
-    "ragdoll_pile_10": "measured (full run): anchor error 3.0 cm > 1 cm, penetration 6.2 cm > 5 cm (10 km out "
-                       "the same; quick run: 2.0 cm and 5.5 cm)",
-    "large_dt_ragdoll": "measured (quick run): anchor error 4.0 cm > 1 cm (the joint post-stabilisation's slop), "
-                        "penetration 4.0 cm > 3 cm",
+    "ragdoll_pile_10": "measured (full run): anchor error 2.6 cm > 1 cm (penetration 3.9 cm, within its bound since "
+                       "the soft margin at joint limits; 6.2 cm before); 10 km out, quick run: 2.2 cm, 4.0 cm",
+    "large_dt_ragdoll": "measured (full run): anchor error 4.0 cm > 1 cm (the joint post-stabilisation's slop), "
+                        "penetration 3.7 cm > 3 cm",
 }
 SLOW_XFAIL["ragdoll_pile_10_far"] = SLOW_XFAIL["ragdoll_pile_10"]
-SLOW_XFAIL["ragdoll_drops_random"] = ("measured (full run): anchor error 4.0 cm > 1 cm (the joint post-stabilisation's "
-                                      "slop), not at rest: 0.055 m/s after 5 s (a limb twitching against its "
-                                      "rigid limit; limit_hertz 60: 0.003 m/s)")
 
 
 @pytest.mark.parametrize("name", list(FAST))
@@ -142,7 +139,7 @@ def test_hard_case_fast(name):
 
 @pytest.mark.slow
 @pytest.mark.parametrize("name", [n for n in sc.case_names()
-                                  if not n.startswith("ragdoll_max_torque") and n != "ragdoll_drops"])
+                                  if not n.startswith(("ragdoll_max_torque", "ragdoll_drops"))])
 def test_hard_case_full(name):
     """The full scenes for their full durations (as ``python -m benchmarks.stability``)."""
     run_and_check(sc.make_case(name), quick=False, known_miss=SLOW_XFAIL.get(name))
@@ -151,13 +148,35 @@ def test_hard_case_full(name):
 # ------------------------------------------------------------------ dropped ragdolls
 def test_ragdoll_drops_land_and_come_to_rest():
     """Six drops from 0.5-1.5 m, upright and tilted, one per world, for the
-    case's full 5 s: finite, no energy gain, penetration under 5 cm and every
-    speed under 5 cm/s from 3 s on, asserted; the 1 cm anchor bound is a known
+    case's full 7 s: finite, no energy gain, penetration under 5 cm and every
+    speed under 2 cm/s from 5 s on, asserted; the 1 cm anchor bound is a known
     miss (the post-stabilisation's 4 cm slop). Measured at the defaults:
-    fastest 4.2 cm/s after 3 s, 3.2 cm deep, joints 4.0 cm; at ACCURATE
-    (``--settings``, see the README) joints 0.2 mm but 0.42 m/s after 3 s."""
+    fastest 0.016 cm/s from 5 s (4.1 cm/s with rigid limits,
+    ``limit_soft_margin=0``), 3.2 cm deep, joints 4.0 cm."""
     run_and_check(sc.ragdoll_drops(), known_miss="measured: anchor error 4.0 cm > 1 cm (the joint "
                                                  "post-stabilisation's slop)", missed_bounds=("anchor error",))
+
+
+def test_random_ragdoll_drops_come_to_rest():
+    """Eight drops drawn at random (``ragdoll_drops_random``, seed 2), for
+    7 s: the same bounds. Measured at the defaults: fastest 0.52 cm/s from
+    5 s, 3.5 cm deep; joints 7.1 cm at one landing step, where the
+    post-stabilisation's pass made the error larger and was taken back
+    (elsewhere 4.0 cm, its slop): a known miss of the 1 cm bound."""
+    run_and_check(sc.ragdoll_drops_random(), known_miss="measured: anchor error 7.1 cm > 1 cm (the joint "
+                                                        "post-stabilisation's slop, and one landing it gave up "
+                                                        "on)", missed_bounds=("anchor error",))
+
+
+def test_rigid_limits_leave_a_random_drop_twitching():
+    """The same eight drops with ``limit_soft_margin=0`` (limits rigid in
+    contact too): an arm keeps trembling against its shoulder limit, not at
+    rest from 5 s (measured 5.5 cm/s). The margin is what rests them."""
+    case = sc.ragdoll_drops_random()
+    case.model = case.model.with_settings(limit_soft_margin=0.0)
+    result = sc.run_case(case)
+    assert not result.nan
+    assert result.rest_speed_max > case.rest_speed
 
 
 # ------------------------------------------------------------------ random maximum torques
@@ -174,7 +193,7 @@ def test_max_torque_quick_length():
     case = sc.ragdoll_max_torque()
     run_and_check(case, 2_000 * case.dt, known_miss="measured (benchmarks.stability --quick): anchor error "
                                                      "4.0 cm > 1 cm (the joint post-stabilisation's slop), "
-                                                     "penetration 11.5 cm > 5 cm within 2,000 steps")
+                                                     "penetration 14.2 cm > 5 cm within 2,000 steps")
 
 
 @pytest.mark.slow
