@@ -59,7 +59,8 @@ ACCURATE = {"substeps": 16, "joint_hertz": math.inf, "joint_limits_in_tree": Tru
 #: but dropped ragdolls land deeper (4.8 cm against 3.2) and still move at
 #: 0.082 m/s 3 s after landing (defaults 0.042); in ``ragdoll_drops_random``
 #: their feet twitch against the ankle and hip twist limits, 0.080 m/s from 5 s
-#: (defaults 0.055, an arm against its shoulder limit). Not for articulations with
+#: (its limits are in the tree and take no ``limit_soft_margin``; the defaults
+#: 0.0052). Not for articulations with
 #: loops: limits in the tree leave their loop rows to Gauss-Seidel, and the
 #: 10x10 sphere grid opened by 7.5 cm in 2 s (defaults 0.91 cm), the chain
 #: pinned at both ends by 1.9 cm (0.09 cm). The step costs 1.8 times the
