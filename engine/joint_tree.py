@@ -49,11 +49,6 @@ def _mtm(A, B):
     return np.matmul(np.swapaxes(A, -1, -2), B)
 
 
-def _inv_definite(A):
-    """Inverse of definite (..., n, n) matrices (``math3d.inverse_or_nan``)."""
-    return inverse_or_nan(A)
-
-
 def _unique_splits(targets):
     """Split positions 0..len-1 into lists whose targets are unique, so that
     ``out[:, t[sel]] += v[:, sel]`` needs no np.add.at (fixed, sequential order)."""
@@ -675,14 +670,14 @@ class _TreeSolver(_Rows):
             if g.body:
                 Di = g.pivots(leaf_inv is not None,
                               lambda ids: leaf_inv.take(ids, 1),
-                              lambda ids: _inv_definite(metric.take(ids, 1) - acc_b.take(ids, 1)))
+                              lambda ids: inverse_or_nan(metric.take(ids, 1) - acc_b.take(ids, 1)))
                 if g.has_parent:
                     Jg = Jc.take(g.pj, 1)
                     Lg = _mm(Di, np.swapaxes(Jg, -1, -2))
                     acc_j[:, g.pj] = _mm(Jg, Lg)
             else:
                 Di = g.pivots(ball_rows, lambda j: self._ball_pivot_inverse(acc_j.take(j, 1), mask.take(j, 1)),
-                              lambda j: _inv_definite(self._joint_pivot(acc_j.take(j, 1), mask.take(j, 1))))
+                              lambda j: inverse_or_nan(self._joint_pivot(acc_j.take(j, 1), mask.take(j, 1))))
                 if g.has_parent:
                     Jg = Jp.take(g.jids, 1)
                     Lg = _mm(Di, Jg)

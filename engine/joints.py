@@ -503,7 +503,7 @@ class JointSet:
         whose tree joints are soft (``joint_hertz``), take that softness; None
         if no row does. See ``Settings.limit_soft_margin``."""
         comp = self._gs_limit_component
-        if self.tree is None or not (comp >= 0).any():
+        if not (comp >= 0).any():  # no limit row in a tree (all -1 without one)
             return None
         rows = self._components_in_contact(touching)[:, comp]  # comp -1 reads the last column, False
         return (soft, rows) if rows.any() else None

@@ -237,8 +237,9 @@ class Settings:
         tree joints (``joint_hertz``, ``joint_damping_ratio``) while violated
         by less than this, and rigid (``limit_hertz``) beyond; 0 turns it off,
         as does ``relax_iterations`` 0 (no relax solve takes back the soft
-        rows' bias: at dt 1/30 with one substep the ragdoll of
-        benchmarks.accuracy then flew apart, 2e7 m against 1.3 m rigid).
+        rows' bias: at dt 1/30 with one substep, where the ragdoll of
+        benchmarks.accuracy diverges anyway, its joints opened by 2e7 m within
+        0.95 s, against 860 m with rigid limits).
         Soft joints against rigid limits left some ragdolls on the ground
         twitching for good: over 24 random drops (``benchmarks.stability``
         ragdoll_drops_random, seeds 1-3) three kept a limb trembling against
