@@ -49,22 +49,23 @@ ACCURATE = {"substeps": 16, "joint_hertz": math.inf, "joint_limits_in_tree": Tru
 #: contacts of articulations on static bodies solved with the articulation's
 #: response (``articulated_contacts``), so that they do not fight the rigid
 #: joints. For ragdolls that must look right (animation) at a fraction of
-#: ACCURATE's cost. Measured against the defaults (README, "Default settings
-#: and why"): benchmarks.accuracy's ragdoll under random torques keeps its
-#: joint anchors within 0.2 mm (defaults 4.0 cm) at 1.65 wall s per simulated
-#: s (defaults 0.99, ACCURATE 4.63), but its limits still give by 0.71 rad
-#: (ACCURATE 0.011; with 8 substeps 0.063 at 2.96); every ragdoll case of
-#: ``benchmarks.stability --quick`` holds 0.2 mm (drops, the 100 m/s impact,
-#: dt 1/30, 2,000 steps of maximum torques, a pile of 10; defaults 2-4 cm),
-#: but dropped ragdolls land deeper (4.8 cm against 3.2) and still move at
-#: 0.082 m/s 3 s after landing (defaults 0.042); in ``ragdoll_drops_random``
-#: their feet twitch against the ankle and hip twist limits, 0.080 m/s from 5 s
-#: (its limits are in the tree and take no ``limit_soft_margin``; the defaults
-#: 0.0052). Not for articulations with
-#: loops: limits in the tree leave their loop rows to Gauss-Seidel, and the
+#: ACCURATE's cost; its contacts are solved before its joints (``step``), so
+#: the limits hold exactly at the end of each solve. Measured against the
+#: defaults (README, "Articulated contacts"): benchmarks.accuracy's ragdoll
+#: under random torques keeps its joint anchors within 0.2 mm (defaults
+#: 4.0 cm), its limits give by 0.49 rad (ACCURATE 0.011); every ragdoll
+#: case of ``benchmarks.stability --quick`` holds 0.2 mm but the 100 m/s
+#: impact (1.55 cm: it rebounds, up to 88 m/s, and slides on at 24 m/s after
+#: 4 s where the defaults rest by 2.7 s); dropped ragdolls rest (0.0081 and
+#: 0.014 m/s from 5 s in ``ragdoll_drops`` and ``ragdoll_drops_random``;
+#: 0.154 and 0.080 with the joints solved first, a foot twitching against
+#: its ankle limit) but land deeper (3.9-5.2 cm against 3.2-3.9). Not for
+#: articulations with loops: limits in the tree leave their loop rows to
+#: Gauss-Seidel, and the
 #: 10x10 sphere grid opened by 7.5 cm in 2 s (defaults 0.91 cm), the chain
-#: pinned at both ends by 1.9 cm (0.09 cm). The step costs 1.8 times the
-#: defaults' for one ragdoll on the ground and 2.1 times at 64 worlds, and
+#: pinned at both ends by 1.9 cm (0.09 cm). The step costs 1.5 times the
+#: defaults' for one ragdoll on the ground and 2.2 times at 64 worlds
+#: (``benchmarks.throughput --worlds 1 64 --scenes ragdoll_ground``), and
 #: its contact response matrices take 190-210 KB per world (defaults 64-91).
 CLOSED_JOINTS = {"joint_hertz": math.inf, "joint_limits_in_tree": True, "joint_projection_slop": 0.0002,
                  "articulated_contacts": True}
@@ -312,9 +313,12 @@ class Settings:
         0.2 mm projection slop opened 6.1 cm and still moved at 0.42 m/s
         after 3 s, with it 0.2 mm and 0.082 m/s (the three upright drops
         still by 3 s), and every ragdoll hard case held 0.2 mm (quick runs;
-        2-9 cm without). At the defaults (soft joints) the drops rest
-        better (0.017 against 0.042 m/s) but land deeper (6.4 against
-        3.2 cm). Cost (``benchmarks.throughput``, ragdoll on the ground under
+        2-9 cm without). Its contacts are solved before the joints (``step``).
+        At the defaults (soft joints) it is no help: the drops rest worse
+        (``ragdoll_drops`` and ``ragdoll_drops_random`` 0.084 and 0.10 m/s
+        from 5 s against 0.0002 and 0.005) and open by 1.8-3.3 cm (4.0-7.1
+        without); with the joints solved first the random drops gained
+        303 J. Cost (``benchmarks.throughput``, ragdoll on the ground under
         random maximum torques): with the default joints about the same at
         W = 1 and 1.1x at W = 64, with rigid joints 2.1x and 1.7x; its
         per-step matrices grow with the contact rows per world. README:
