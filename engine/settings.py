@@ -55,16 +55,16 @@ ACCURATE = {"substeps": 16, "joint_hertz": math.inf, "joint_limits_in_tree": Tru
 #: under random torques keeps its joint anchors within 0.2 mm (defaults
 #: 4.0 cm), its limits give by 0.49 rad (ACCURATE 0.011); every ragdoll
 #: case of ``benchmarks.stability --quick`` holds 0.2 mm but the 100 m/s
-#: impact (1.55 cm: it rebounds, up to 88 m/s, and slides on at 24 m/s after
-#: 4 s where the defaults rest by 2.7 s); dropped ragdolls rest (0.0081 and
+#: impact (1.55 cm: it rebounds, a body at up to 88 m/s, and a body still
+#: moves at 30 m/s 3-4 s after it, where the defaults rest by 2.7 s); dropped ragdolls rest (0.0081 and
 #: 0.014 m/s from 5 s in ``ragdoll_drops`` and ``ragdoll_drops_random``;
 #: 0.154 and 0.080 with the joints solved first, a foot twitching against
-#: its ankle limit) but land deeper (3.9-5.2 cm against 3.2-3.9). Not for
+#: its ankle limit) but land deeper (3.9-5.2 cm against 3.2-3.5). Not for
 #: articulations with loops: limits in the tree leave their loop rows to
 #: Gauss-Seidel, and the
 #: 10x10 sphere grid opened by 7.5 cm in 2 s (defaults 0.91 cm), the chain
 #: pinned at both ends by 1.9 cm (0.09 cm). The step costs 1.5 times the
-#: defaults' for one ragdoll on the ground and 2.2 times at 64 worlds
+#: defaults' for one ragdoll on the ground and 2.2-2.3 times at 64 worlds
 #: (``benchmarks.throughput --worlds 1 64 --scenes ragdoll_ground``), and
 #: its contact response matrices take 190-210 KB per world (defaults 64-91).
 CLOSED_JOINTS = {"joint_hertz": math.inf, "joint_limits_in_tree": True, "joint_projection_slop": 0.0002,
@@ -311,16 +311,19 @@ class Settings:
         default. With rigid joints it keeps them closed on the ground:
         ``ragdoll_drops`` with rigid tree joints, limits in the tree and a
         0.2 mm projection slop opened 6.1 cm and still moved at 0.42 m/s
-        after 3 s, with it 0.2 mm and 0.082 m/s (the three upright drops
-        still by 3 s), and every ragdoll hard case held 0.2 mm (quick runs;
-        2-9 cm without). Its contacts are solved before the joints (``step``).
+        after 3 s, with it 0.2 mm and 0.082 m/s (joints solved first, as
+        then); with its contacts solved before the joints (``step``, now,
+        every contact row of the scene, the body-by-body ones too) they rest
+        at 0.0081 m/s from 5 s, and every ragdoll hard case holds 0.2 mm but
+        the 100 m/s impact (1.55 cm; quick runs; 2-9 cm without).
         At the defaults (soft joints) it is no help: the drops rest worse
         (``ragdoll_drops`` and ``ragdoll_drops_random`` 0.084 and 0.10 m/s
         from 5 s against 0.0002 and 0.005) and open by 1.8-3.3 cm (4.0-7.1
         without); with the joints solved first the random drops gained
         303 J. Cost (``benchmarks.throughput``, ragdoll on the ground under
         random maximum torques): with the default joints about the same at
-        W = 1 and 1.1x at W = 64, with rigid joints 2.1x and 1.7x; its
+        W = 1 and 1.1x at W = 64, with rigid joints 2.1x and 1.7x the rigid
+        joints' without it (``CLOSED_JOINTS``: 1.5x and 2.2-2.3x the defaults'); its
         per-step matrices grow with the contact rows per world. README:
         "Articulated contacts".
     max_push_out: m/s, the largest speed the position bias may add.

@@ -8,7 +8,8 @@
                    with articulated_contacts, the contact-space response of
                    the articulations on static bodies
       substeps     integrate velocities (force effects); implicit velocity effects;
-                   warm start + biased solve; integrate positions; relax solve
+                   warm start + biased solve (joints, then contacts; contacts
+                   first with articulated_contacts); integrate positions; relax solve
                    (and further relax passes over the contacts of unjointed bodies)
       restitution  once, from the closing velocities before the solve
       end of step  joint post-stabilisation (positions back onto the joints
@@ -65,14 +66,16 @@ def step(model, state, control: Control | None = None):
     # With articulated contacts the contact impulses already keep the joint
     # rows (not the limits: they are not in the response), so the joints go
     # last and their limits hold exactly; the soft contacts take the small
-    # velocity error up in the next sweep. With the joints first, a limb
+    # velocity error up in the next sweep. The order is the scene's: rows that
+    # keep the body-by-body solve (between two moving bodies, articulations
+    # with loops) go first too. With the joints first, a limb
     # resting on the ground against its limit was pushed into it by every
     # contact solve and out of it by the next joint solve: 5 of 8 random drops
     # (ragdoll_drops_random, CLOSED_JOINTS) twitched at 3-8 cm/s to the end.
     order = (contacts, joints) if s.articulated_contacts else (joints, contacts)
     constraints = [c for c in order if c is not None]
     passive = model.joints is not None and model.joints.has_passive
-    # Contacts first: the joints choose their softness from the bodies in contact.
+    # The contacts' begin_step first: the joints choose their softness from the bodies in contact.
     touching = None
     if contacts is not None:
         contacts.begin_step(model, state, h)
