@@ -58,7 +58,7 @@ def test_response_keeps_every_joint_and_gives_a_delassus_matrix():
     joint_rows = (np.matmul(Ja, Z[:, a]) + np.matmul(Jb, Z[:, b])) * mask[..., None]
     assert np.abs(joint_rows).max() <= 1e-9 * np.abs(Z).max()
     v = art.valid[0]
-    A = art.A[0][np.ix_(v, v)]
+    A = art.A_columns[0].T[np.ix_(v, v)]
     assert np.abs(A - A.T).max() <= 1e-12 * np.abs(A).max()
     assert np.linalg.eigvalsh(0.5 * (A + A.T)).min() >= -1e-9 * np.abs(A).max()
     single = rows.mn[art.rows]  # one body's normal effective masses (rows, P)
