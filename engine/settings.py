@@ -63,8 +63,8 @@ ACCURATE = {"substeps": 16, "joint_hertz": math.inf, "joint_limits_in_tree": Tru
 #: articulations with loops: limits in the tree leave their loop rows to
 #: Gauss-Seidel, and the
 #: 10x10 sphere grid opened by 7.5 cm in 2 s (defaults 0.91 cm), the chain
-#: pinned at both ends by 1.9 cm (0.09 cm). The step costs 1.5 times the
-#: defaults' for one ragdoll on the ground and 2.2-2.3 times at 64 worlds
+#: pinned at both ends by 1.9 cm (0.09 cm). The step costs 1.4-1.7 times the
+#: defaults' for one ragdoll on the ground and 2.1-2.5 times at 64 worlds
 #: (``benchmarks.throughput --worlds 1 64 --scenes ragdoll_ground``), and
 #: its contact response matrices take 190-210 KB per world (defaults 64-91).
 CLOSED_JOINTS = {"joint_hertz": math.inf, "joint_limits_in_tree": True, "joint_projection_slop": 0.0002,
@@ -323,7 +323,7 @@ class Settings:
         303 J. Cost (``benchmarks.throughput``, ragdoll on the ground under
         random maximum torques): with the default joints about the same at
         W = 1 and 1.1x at W = 64, with rigid joints 2.1x and 1.7x the rigid
-        joints' without it (``CLOSED_JOINTS``: 1.5x and 2.2-2.3x the defaults'); its
+        joints' without it (``CLOSED_JOINTS``: 1.4-1.7x and 2.1-2.5x the defaults'); its
         per-step matrices grow with the contact rows per world. README:
         "Articulated contacts".
     max_push_out: m/s, the largest speed the position bias may add.
