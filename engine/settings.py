@@ -56,12 +56,12 @@ ACCURATE = {"substeps": 16, "joint_hertz": math.inf, "joint_limits_in_tree": Tru
 #: 4.0 cm), its limits give by 0.49 rad (ACCURATE 0.011); every ragdoll
 #: case of ``benchmarks.stability --quick`` holds 0.2 mm but the 100 m/s
 #: impact (1.55 cm: it rebounds, a body at up to 88 m/s, and a body still
-#: moves at 30 m/s 3-4 s after it, where the defaults rest by 2.7 s); dropped ragdolls rest (0.0081 and
-#: 0.014 m/s from 5 s in ``ragdoll_drops`` and ``ragdoll_drops_random``;
-#: 0.154 and 0.080 with the joints solved first, a foot twitching against
-#: its ankle limit) but land deeper (3.9-5.2 cm against 3.2-3.5). Not for
-#: articulations with loops: limits in the tree leave their loop rows to
-#: Gauss-Seidel, and the
+#: moves at 30 m/s 3-4 s after it, where the defaults rest by 2.7 s);
+#: dropped ragdolls rest (0.0081 and 0.014 m/s from 5 s in ``ragdoll_drops``
+#: and ``ragdoll_drops_random``; 0.154 and 0.080 with the joints solved
+#: first, a foot twitching against its ankle limit) but land deeper
+#: (3.9-5.2 cm against 3.2-3.5). Not for articulations with loops: limits
+#: in the tree leave their loop rows to Gauss-Seidel, and the
 #: 10x10 sphere grid opened by 7.5 cm in 2 s (defaults 0.91 cm), the chain
 #: pinned at both ends by 1.9 cm (0.09 cm). The step costs 1.4-1.7 times the
 #: defaults' for one ragdoll on the ground and 2.1-2.5 times at 64 worlds
@@ -323,8 +323,8 @@ class Settings:
         303 J. Cost (``benchmarks.throughput``, ragdoll on the ground under
         random maximum torques): with the default joints about the same at
         W = 1 and 1.1x at W = 64, with rigid joints 2.1x and 1.7x the rigid
-        joints' without it (``CLOSED_JOINTS``: 1.4-1.7x and 2.1-2.5x the defaults'); its
-        per-step matrices grow with the contact rows per world. README:
+        joints' without it (``CLOSED_JOINTS``: 1.4-1.7x and 2.1-2.5x the
+        defaults'); its per-step matrices grow with the contact rows per world. README:
         "Articulated contacts".
     max_push_out: m/s, the largest speed the position bias may add.
     restitution_threshold: m/s, closing speeds below it do not bounce.

@@ -68,9 +68,9 @@ def step(model, state, control: Control | None = None):
     # last and their limits hold exactly; the soft contacts take the small
     # velocity error up in the next sweep. The order is the scene's: rows that
     # keep the body-by-body solve (between two moving bodies, articulations
-    # with loops) go first too. With the joints first, a limb
-    # resting on the ground against its limit was pushed into it by every
-    # contact solve and out of it by the next joint solve: 5 of 8 random drops
+    # with loops) go first too. With the joints first, a limb resting on the
+    # ground against its limit was pushed into it by every contact solve and
+    # out of it by the next joint solve: 5 of 8 random drops
     # (ragdoll_drops_random, CLOSED_JOINTS) twitched at 3-8 cm/s to the end.
     order = (contacts, joints) if s.articulated_contacts else (joints, contacts)
     constraints = [c for c in order if c is not None]
