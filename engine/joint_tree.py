@@ -462,41 +462,80 @@ class _TreeSolver(_Rows):
             self._apply(js, model, state, a, b, Ja, Jb, d)
             return
         lrows, lr, sigma, exists, lower = self.limit_rows(js, state, h, use_bias)
-        a, b, Ja, Jb, mask, r = self.jacobians(js, state, use_bias, bias_rate)
-        # Active set over the limit rows: start from the rows the current
-        # velocities would violate, drop rows that pull, re-solve.
+        # Active set over the limit rows, solved with one factorisation: that of
+        # the system with every existing limit row in its joint's free slot
+        # (positions alone, so the relax solve of one substep and the biased
+        # solve of the next share it, as above), and B = A⁻¹ on the limit rows
+        # (A = J M⁻¹ Jᵀ). Dropping the rows D (λ_D = 0, their equations gone) is
+        # solving with their right-hand side moved by δ_D, where
+        # B_DD δ_D = -(B r)_D: the other rows' equations hold as they were.
+        # The same λ as factoring the active rows alone, to rounding, with one
+        # factorisation per positions instead of one per pass (the Schur
+        # complement update of active-set QP methods, Nocedal & Wright 2006,
+        # ch. 16).
+        if self._factored is None or self._factored[0] is not state:
+            self._factored = (state, *self._limit_factors(js, state, lrows, exists))
+        _, blocks, Ja, Jb, factors, B_cols, B_lim = self._factored
+        a, b, _, _, mask, r = self.right_hand_side(js, state, blocks, self, use_bias, bias_rate)
+        r[..., 3:5] = np.where(exists[..., :2], lr[..., :2], r[..., 3:5])
+        x0 = self._substitute(factors, r)
+        cj, cs = self.limit_candidates
+        x0_lim = x0[:, cj, 3 + cs]  # (W, k)
+        exists_c = exists[:, cj, cs]
+        lam_eq = 0.0 if np.ndim(impulse_scale) == 0 and impulse_scale == 0.0 else impulse_scale * self._lam(state)
+        W, nj = mask.shape[:2]
+        # Start from the rows the current velocities would violate, drop rows
+        # that pull, add rows the solve's impulses would drive past their limit.
         active = exists & (sigma * lr < 0)
         for _ in range(self.active_set_passes):
-            m2 = mask.copy()
-            Ja2, Jb2, r2 = Ja.copy(), Jb.copy(), r.copy()
-            for k in range(2):
-                use = active[..., k]
-                row = 3 + k
-                u = use[..., None]
-                Jb2[..., row, 3:] = np.where(u, lrows[..., k, :], Jb2[..., row, 3:])
-                Ja2[..., row, 3:] = np.where(u, -lrows[..., k, :], Ja2[..., row, 3:])
-                r2[..., row] = np.where(use, lr[..., k], r2[..., row])
-                m2[..., row] = np.where(use, 1.0, m2[..., row])
-            x = self._factor_solve(Ja2, Jb2, m2, r2, ball_rows=False)  # limit rows in the free slots
-            lim = m2 - mask  # rows taken by limits (free slots of the joint): rigid, whole λ
-            d = (-mass_scale * x - impulse_scale * self._lam(state)) * mask - x * lim
+            drop = exists_c & ~active[:, cj, cs]
+            x = x0
+            if drop.any():
+                both = drop[:, :, None] & drop[:, None, :]
+                Bd = np.where(both, B_lim, np.eye(cj.size))
+                delta = np.linalg.solve(Bd, np.where(drop, -x0_lim, 0.0)[..., None])
+                x = x0 + np.matmul(B_cols, delta).reshape(W, nj, 6)
+            lim = np.zeros((W, nj, 6))
+            lim[..., 3:5] = active[..., :2]  # rows taken by limits (free slots of the joint): rigid, whole λ
+            d = (-mass_scale * x - lam_eq) * mask - x * lim
             lam_lim = -x[..., 3:5]
             bad = active[..., :2] & (sigma[..., :2] * lam_lim < 0)
-            # Rows the solve's impulses would drive past their limit join.
-            after = self._rows_after(js, state, a, b, Ja2, Jb2, d, lrows, lr)
+            after = self._rows_after(js, state, a, b, Ja, Jb, d, lrows, lr)
             add = exists[..., :2] & ~active[..., :2] & (sigma[..., :2] * after[..., :2] < -ACTIVE_SET_TOLERANCE)
             if not (bad.any() or add.any()):
                 break
             # Drop pulling rows first; add violated rows once none pulls.
             bad_joint = bad.any(axis=-1, keepdims=True)
             active[..., :2] = (active[..., :2] & ~bad) | (add & ~bad_joint)
-        self._apply(js, model, state, a, b, Ja2, Jb2, d)
+        # Rows of dropped slots carry d = 0 (mask and lim are 0 there).
+        self._apply(js, model, state, a, b, Ja, Jb, d)
         # Store: twist row impulse is λ_lo - λ_hi, swing row λ_swing.
         idx = self.joints
         tw = d[..., 3] * lim[..., 3]
         state.joint_limit_impulse[:, idx, 0] = np.where(lower, tw, 0.0)
         state.joint_limit_impulse[:, idx, 1] = np.where(lower, 0.0, -tw)
         state.joint_limit_impulse[:, idx, 2] = d[..., 4] * lim[..., 4]
+
+    def _limit_factors(self, js, state, lrows, exists):
+        """For ``solve`` with limits: the position blocks, the Jacobian blocks
+        Ja, Jb with every existing limit row (``limit_rows``) in its slot, the
+        factors of that system, and B = A⁻¹ on the limit rows: its columns
+        B_cols (W, 6 nj, k) and the limit rows' block B_lim (W, k, k), k the
+        tree's possible limit rows (``limit_candidates``)."""
+        blocks = self.blocks(js, state, self)
+        Ja, Jb, mask = blocks[7].copy(), blocks[8].copy(), blocks[9].copy()
+        for k in range(2):
+            e = exists[..., k]
+            Jb[..., 3 + k, 3:] = np.where(e[..., None], lrows[..., k, :], Jb[..., 3 + k, 3:])
+            Ja[..., 3 + k, 3:] = np.where(e[..., None], -lrows[..., k, :], Ja[..., 3 + k, 3:])
+            mask[..., 3 + k] = np.where(e, 1.0, mask[..., 3 + k])
+        factors = self._factor(Ja, Jb, mask, ball_rows=False)
+        cj, cs = self.limit_candidates
+        W, nj, k = mask.shape[0], mask.shape[1], cj.size
+        R = np.zeros((W, nj, 6, k))
+        R[:, cj, 3 + cs, np.arange(k)] = 1.0
+        X = self._substitute_columns(factors, R)
+        return blocks, Ja, Jb, factors, X.reshape(W, nj * 6, k), X[:, cj, 3 + cs]
 
     def _rows_after(self, js, state, a, b, Ja, Jb, d, lrows, lr):
         """Limit row values (lr is at the current velocities) after the

@@ -153,6 +153,12 @@ class JointSet:
             elif settings.joint_limits_in_tree and math.isinf(settings.limit_hertz):
                 lim_in_tree = in_tree
                 self.tree.limits = bool((has_limit | has_swing)[self.tree.joints].any())
+                # The tree's possible limit rows: (tree joint, slot) with slot 0 twist, 1 swing.
+                tj = self.tree.joints
+                twist_j = np.flatnonzero(has_limit[tj] & (self.kind[tj] != FIXED))
+                swing_j = np.flatnonzero(has_swing[tj])
+                self.tree.limit_candidates = (np.concatenate((twist_j, swing_j)),
+                                              np.repeat([0, 1], (twist_j.size, swing_j.size)))
         # Loop-closing joints solved with the tree (``_TreeSolver.solve_with_loops``),
         # unless their rows stay Gauss-Seidel; not with limits in the tree, nor
         # with rigid tree joints: they gained energy (the 10x10 sphere grid at

@@ -63,10 +63,10 @@ ACCURATE = {"substeps": 16, "joint_hertz": math.inf, "joint_limits_in_tree": Tru
 #: (3.9-5.2 cm against 3.2-3.5). Not for articulations with loops: limits
 #: in the tree leave their loop rows to Gauss-Seidel, and the
 #: 10x10 sphere grid opened by 7.5 cm in 2 s (defaults 0.91 cm), the chain
-#: pinned at both ends by 1.9 cm (0.09 cm). The step costs 1.4-1.7 times the
-#: defaults' for one ragdoll on the ground and 2.1-2.5 times at 64 worlds
+#: pinned at both ends by 1.9 cm (0.09 cm). The step costs 1.0-1.1 times the
+#: defaults' for one ragdoll on the ground and 1.75 times at 64 worlds
 #: (``benchmarks.throughput --worlds 1 64 --scenes ragdoll_ground``), and
-#: its contact response matrices take 190-210 KB per world (defaults 64-91).
+#: its contact response matrices take 195-225 KB per world (defaults 64-91).
 CLOSED_JOINTS = {"joint_hertz": math.inf, "joint_limits_in_tree": True, "joint_projection_slop": 0.0002,
                  "articulated_contacts": True}
 
@@ -323,8 +323,9 @@ class Settings:
         303 J. Cost (``benchmarks.throughput``, ragdoll on the ground under
         random maximum torques): with the default joints about the same at
         W = 1 and 1.1x at W = 64, with rigid joints 2.1x and 1.7x the rigid
-        joints' without it (``CLOSED_JOINTS``: 1.4-1.7x and 2.1-2.5x the
-        defaults'); its per-step matrices grow with the contact rows per world. README:
+        joints' without it (``CLOSED_JOINTS``, measured before its limits' active
+        set went to one factorisation a set of positions: 1.4-1.7x and 2.1-2.5x the
+        defaults'; now 1.0-1.1x and 1.75x); its per-step matrices grow with the contact rows per world. README:
         "Articulated contacts".
     max_push_out: m/s, the largest speed the position bias may add.
     restitution_threshold: m/s, closing speeds below it do not bounce.
