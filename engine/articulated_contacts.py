@@ -161,21 +161,26 @@ class ArticulatedContacts:
         lam = self._gather(cr)
         start = lam.copy()
         A, valid = self.A_columns, self.valid
+        # A column's impulse changes only at its own update, so the terms read
+        # from the sweep's start (the impulse term, the restitution record) are
+        # taken out of the loop; u_before: each normal column's velocity at its update.
+        isc_lam = None if isc is None else isc * start
+        u_before = np.empty(u.shape)
+        for i in self.normals:
+            ui = u_before[:, i] = u[:, i]
+            d = gain[:, i] * (ui + bias[:, i])
+            if isc_lam is not None:
+                d = d - isc_lam[:, i]
+            new = np.where(valid[:, i], np.maximum(start[:, i] + d, 0.0), 0.0)
+            u += A[:, i] * (new - start[:, i])[:, None]
+            lam[:, i] = new
         # For restitution: each point's closing speed and gap just before it first takes load.
-        loaded = self._normal_columns(cr.max_lam_n[self.rows]) > 0
+        n = self.normals
+        first = ~(self._normal_columns(cr.max_lam_n[self.rows]) > 0)[:, n] & (lam[:, n] > 0)
         v_close = self._normal_columns(cr.vn_close[self.rows])
         s_close = self._normal_columns(cr.s_close[self.rows])
-        for i in self.normals:
-            d = gain[:, i] * (u[:, i] + bias[:, i])
-            if isc is not None:
-                d = d - isc[:, i] * lam[:, i]
-            new = np.where(valid[:, i], np.maximum(lam[:, i] + d, 0.0), 0.0)
-            first = ~loaded[:, i] & (new > 0)
-            v_close[:, i] = np.where(first, u[:, i], v_close[:, i])
-            s_close[:, i] = np.where(first, sep[:, i], s_close[:, i])
-            loaded[:, i] |= new > 0
-            u += A[:, i] * (new - lam[:, i])[:, None]
-            lam[:, i] = new
+        v_close[:, n] = np.where(first, u_before[:, n], v_close[:, n])
+        s_close[:, n] = np.where(first, sep[:, n], s_close[:, n])
         cr.vn_close[self.rows] = v_close[self.wi, self.col[..., 0]]
         cr.s_close[self.rows] = s_close[self.wi, self.col[..., 0]]
         for i in self.normals:
