@@ -14,7 +14,7 @@ from engine.joint_tree import _TreeSolver
 from engine.math3d import mat_vec
 
 #: Rigid joints with their limits in the tree, enough active-set passes to converge.
-RIGID_LIMITS = dict(joint_hertz=math.inf, joint_limits_in_tree=True, joint_active_set_passes=30)
+RIGID_LIMITS = {"joint_hertz": math.inf, "joint_limits_in_tree": True, "joint_active_set_passes": 30}
 
 
 def _limit_rows_before(tree, js, state, h, use_bias):
