@@ -156,7 +156,11 @@ class Settings:
         rows: 7°); with soft joints the soft equality rows and the rigid limit
         rows of one solve disagree, and at 4 substeps a light foot still
         swings 16° past its cone within a substep. On in ``ACCURATE``.
-    joint_active_set_passes: most factorisations per sweep for that active set.
+    joint_active_set_passes: most passes of that active set per solve (each a
+        small solve in the limit rows' space on the tree's one factorisation per
+        set of positions; 5 converged every solve of a humanoid in the air under
+        random maximum torques, 3 left rows closing at up to 9 rad/s, but did not
+        rest ``CLOSED_JOINTS``' drops better).
     joint_hertz, joint_damping_ratio: softness of the joints the tree solver
         solves in an articulation that Gauss-Seidel rows act on or that
         has loops: a contact this step, a limit outside the tree, a
