@@ -37,6 +37,11 @@ _DIAG3 = np.arange(3)
 LOOP_SOLVE_BYTES = 256 * 2 ** 20  # most temporaries of one chunk of worlds in the loop solve
 LOOP_REGULARISATION = 1e-6  # of the largest diagonal entry, added to the loop rows' Schur complement
 ACTIVE_SET_TOLERANCE = 1e-6  # rad/s: a limit row closing faster than this after a solve joins the active set
+#: Most limit rows in a tree for its active set on one factorisation (``_limits_schur``); with
+#: more, B's columns cost more than factoring each pass. A chain of n limited ball joints (2n
+#: rows), ms a step at W = 1 and 32, refactoring -> one factorisation: n = 12 16.2 -> 12.0 and
+#: 47.8 -> 35.7; n = 24 24.5 -> 18.6 and 68.2 -> 68.9; n = 40 27.8 -> 27.4 and 96 -> 128.
+SCHUR_LIMIT_ROWS = 48
 
 
 def _mm(A, B):
@@ -462,17 +467,34 @@ class _TreeSolver(_Rows):
             self._apply(js, model, state, a, b, Ja, Jb, d)
             return
         lrows, lr, sigma, exists, lower = self.limit_rows(js, state, h, use_bias)
-        # Active set over the limit rows, solved with one factorisation: that of
-        # the system with every existing limit row in its joint's free slot
-        # (positions alone, so the relax solve of one substep and the biased
-        # solve of the next share it, as above), and B = A⁻¹ on the limit rows
-        # (A = J M⁻¹ Jᵀ). Dropping the rows D (λ_D = 0, their equations gone) is
-        # solving with their right-hand side moved by δ_D, where
-        # B_DD δ_D = -(B r)_D: the other rows' equations hold as they were.
-        # The same λ as factoring the active rows alone, to rounding, with one
-        # factorisation per positions instead of one per pass (the Schur
-        # complement update of active-set QP methods, Nocedal & Wright 2006,
-        # ch. 16).
+        if self.limit_candidates[0].size <= SCHUR_LIMIT_ROWS:
+            a, b, Ja, Jb, d, lim = self._limits_schur(js, state, lrows, lr, sigma, exists, bias_rate, mass_scale,
+                                                      impulse_scale, use_bias)
+        else:
+            a, b, Ja, Jb, d, lim = self._limits_refactored(js, state, lrows, lr, sigma, exists, bias_rate,
+                                                           mass_scale, impulse_scale, use_bias)
+        self._apply(js, model, state, a, b, Ja, Jb, d)
+        # Store: twist row impulse is λ_lo - λ_hi, swing row λ_swing.
+        idx = self.joints
+        tw = d[..., 3] * lim[..., 3]
+        state.joint_limit_impulse[:, idx, 0] = np.where(lower, tw, 0.0)
+        state.joint_limit_impulse[:, idx, 1] = np.where(lower, 0.0, -tw)
+        state.joint_limit_impulse[:, idx, 2] = d[..., 4] * lim[..., 4]
+
+    def _limits_schur(self, js, state, lrows, lr, sigma, exists, bias_rate, mass_scale, impulse_scale, use_bias):
+        """The tree solve with the limit rows of ``limit_rows`` by their active
+        set (``_active_set``), on one factorisation per set of positions.
+        Returns a, b, Ja, Jb, the impulses d (W, nj, 6) and the limit-taken
+        slots lim (W, nj, 6)."""
+        # One factorisation: that of the system with every existing limit row
+        # in its joint's free slot (positions alone, so the relax solve of one
+        # substep and the biased solve of the next share it, as above), and
+        # B = A⁻¹ on the limit rows (A = J M⁻¹ Jᵀ). Dropping the rows D (λ_D = 0,
+        # their equations gone) is solving with their right-hand side moved by
+        # δ_D, where B_DD δ_D = -(B r)_D: the other rows' equations hold as they
+        # were. The same λ as factoring the active rows alone, to rounding (the
+        # Schur complement update of active-set QP methods, Nocedal & Wright
+        # 2006, ch. 16).
         if self._factored is None or self._factored[0] is not state:
             self._factored = (state, *self._limit_factors(js, state, lrows, exists))
         _, blocks, Ja, Jb, factors, B_cols, B_lim = self._factored
@@ -482,24 +504,62 @@ class _TreeSolver(_Rows):
         cj, cs = self.limit_candidates
         x0_lim = x0[:, cj, 3 + cs]  # (W, k)
         exists_c = exists[:, cj, cs]
-        lam_eq = 0.0 if np.ndim(impulse_scale) == 0 and impulse_scale == 0.0 else impulse_scale * self._lam(state)
         W, nj = mask.shape[:2]
-        # Start from the rows the current velocities would violate, drop rows
-        # that pull, add rows the solve's impulses would drive past their limit.
+
+        def solve_for(active):
+            drop = exists_c & ~active[:, cj, cs]
+            if not drop.any():
+                return x0, Ja, Jb
+            Bd = np.where(drop[:, :, None] & drop[:, None, :], B_lim, np.eye(cj.size))
+            rhs = np.where(drop, -x0_lim, 0.0)[..., None]
+            try:
+                delta = np.linalg.solve(Bd, rhs)
+            except np.linalg.LinAlgError:  # a singular B_DD (degenerate rows): least squares
+                delta = np.matmul(np.linalg.pinv(Bd), rhs)
+            # Worlds dropping nothing keep x0 as it is (their bits never depend on the others').
+            x = np.where(drop.any(axis=-1)[:, None, None], x0 + np.matmul(B_cols, delta).reshape(W, nj, 6), x0)
+            return x, Ja, Jb  # rows of dropped slots carry d = 0 (mask and lim are 0 there)
+
+        return (a, b, *self._active_set(js, state, a, b, mask, lrows, lr, sigma, exists, mass_scale, impulse_scale,
+                                        solve_for))
+
+    def _limits_refactored(self, js, state, lrows, lr, sigma, exists, bias_rate, mass_scale, impulse_scale,
+                           use_bias):
+        """``_limits_schur`` for trees with many limit rows: the system of the
+        active rows factored afresh in each pass (cheaper once B's columns
+        cost more than the passes' factorisations: ``SCHUR_LIMIT_ROWS``)."""
+        a, b, Ja, Jb, mask, r = self.jacobians(js, state, use_bias, bias_rate)
+
+        def solve_for(active):
+            m2 = mask.copy()
+            Ja2, Jb2, r2 = Ja.copy(), Jb.copy(), r.copy()
+            for k in range(2):
+                use = active[..., k]
+                row = 3 + k
+                u = use[..., None]
+                Jb2[..., row, 3:] = np.where(u, lrows[..., k, :], Jb2[..., row, 3:])
+                Ja2[..., row, 3:] = np.where(u, -lrows[..., k, :], Ja2[..., row, 3:])
+                r2[..., row] = np.where(use, lr[..., k], r2[..., row])
+                m2[..., row] = np.where(use, 1.0, m2[..., row])
+            return self._factor_solve(Ja2, Jb2, m2, r2, ball_rows=False), Ja2, Jb2  # limit rows in the free slots
+
+        return (a, b, *self._active_set(js, state, a, b, mask, lrows, lr, sigma, exists, mass_scale, impulse_scale,
+                                        solve_for))
+
+    def _active_set(self, js, state, a, b, mask, lrows, lr, sigma, exists, mass_scale, impulse_scale, solve_for):
+        """Active set over the limit rows: start from the rows the current
+        velocities would violate, drop rows that pull, add rows the solve's
+        impulses would drive past their limit. ``solve_for(active)`` gives x
+        = A⁻¹ r over the equality rows and the active limit rows, and the
+        Jacobian blocks it used. Returns Ja, Jb, d, lim."""
+        lam_eq = 0.0 if np.ndim(impulse_scale) == 0 and impulse_scale == 0.0 else impulse_scale * self._lam(state)
         active = exists & (sigma * lr < 0)
         for _ in range(self.active_set_passes):
-            drop = exists_c & ~active[:, cj, cs]
-            x = x0
-            if drop.any():
-                both = drop[:, :, None] & drop[:, None, :]
-                Bd = np.where(both, B_lim, np.eye(cj.size))
-                delta = np.linalg.solve(Bd, np.where(drop, -x0_lim, 0.0)[..., None])
-                x = x0 + np.matmul(B_cols, delta).reshape(W, nj, 6)
-            lim = np.zeros((W, nj, 6))
+            x, Ja, Jb = solve_for(active)
+            lim = np.zeros(x.shape)
             lim[..., 3:5] = active[..., :2]  # rows taken by limits (free slots of the joint): rigid, whole λ
             d = (-mass_scale * x - lam_eq) * mask - x * lim
-            lam_lim = -x[..., 3:5]
-            bad = active[..., :2] & (sigma[..., :2] * lam_lim < 0)
+            bad = active[..., :2] & (sigma[..., :2] * -x[..., 3:5] < 0)  # limit impulses λ = -x that pull
             after = self._rows_after(js, state, a, b, Ja, Jb, d, lrows, lr)
             add = exists[..., :2] & ~active[..., :2] & (sigma[..., :2] * after[..., :2] < -ACTIVE_SET_TOLERANCE)
             if not (bad.any() or add.any()):
@@ -507,14 +567,7 @@ class _TreeSolver(_Rows):
             # Drop pulling rows first; add violated rows once none pulls.
             bad_joint = bad.any(axis=-1, keepdims=True)
             active[..., :2] = (active[..., :2] & ~bad) | (add & ~bad_joint)
-        # Rows of dropped slots carry d = 0 (mask and lim are 0 there).
-        self._apply(js, model, state, a, b, Ja, Jb, d)
-        # Store: twist row impulse is λ_lo - λ_hi, swing row λ_swing.
-        idx = self.joints
-        tw = d[..., 3] * lim[..., 3]
-        state.joint_limit_impulse[:, idx, 0] = np.where(lower, tw, 0.0)
-        state.joint_limit_impulse[:, idx, 1] = np.where(lower, 0.0, -tw)
-        state.joint_limit_impulse[:, idx, 2] = d[..., 4] * lim[..., 4]
+        return Ja, Jb, d, lim
 
     def _limit_factors(self, js, state, lrows, exists):
         """For ``solve`` with limits: the position blocks, the Jacobian blocks

@@ -6,8 +6,10 @@ limit rows."""
 import math
 
 import numpy as np
+import pytest
 
 import engine as e
+import engine.joint_tree
 from benchmarks.throughput import random_controls
 from engine.humanoid import add_humanoid
 from engine.joint_tree import _TreeSolver
@@ -28,9 +30,11 @@ def _limit_rows_before(tree, js, state, h, use_bias):
     return rows, sigma, exists, bias
 
 
-def test_limit_rows_end_each_tree_solve_complementary(monkeypatch):
-    """A humanoid in the air under random maximum torques (its limbs hit their
-    limits every few steps): after each tree solve the equality rows hold
+@pytest.mark.parametrize("schur", [True, False], ids=["one factorisation", "refactored each pass"])
+def test_limit_rows_end_each_tree_solve_complementary(monkeypatch, schur):
+    """Both active-set solves (``SCHUR_LIMIT_ROWS``): a humanoid in the air
+    under random maximum torques (its limbs hit their limits every few
+    steps): after each tree solve the equality rows hold
     (J u + b = 0), every limit row is at or past its bound's speed
     (σ (J u + b) >= 0), the limit impulses push (σ λ >= 0, stored as
     λ_lo, λ_hi, λ_swing >= 0), and a row with an impulse is held exactly."""
@@ -61,6 +65,8 @@ def test_limit_rows_end_each_tree_solve_complementary(monkeypatch):
         counts["held rows"] += int(held.sum())
 
     monkeypatch.setattr(_TreeSolver, "solve", checked)
+    if not schur:
+        monkeypatch.setattr(engine.joint_tree, "SCHUR_LIMIT_ROWS", -1)
     for k in range(120):
         e.step(model, state, controls[k % len(controls)])
     assert counts["held rows"] > 100, counts  # the limits did act
