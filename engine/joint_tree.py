@@ -54,6 +54,23 @@ def _mtm(A, B):
     return np.matmul(np.swapaxes(A, -1, -2), B)
 
 
+def _in_limit_slots(on, lrows, lr, Ja, Jb, mask, r=None):
+    """Copies of the tree rows' Jacobian blocks Ja, Jb (W, nj, 6, 6), mask
+    (W, nj, 6) and, if given, right-hand side r with the limit rows ``lrows``
+    (W, nj, 3, 3; values ``lr``) in their joints' free slots 3 (twist) and 4
+    (swing) where ``on`` (W, nj, >= 2)."""
+    Ja, Jb, mask = Ja.copy(), Jb.copy(), mask.copy()
+    r = None if r is None else r.copy()
+    for k in range(2):
+        use = on[..., k]
+        Jb[..., 3 + k, 3:] = np.where(use[..., None], lrows[..., k, :], Jb[..., 3 + k, 3:])
+        Ja[..., 3 + k, 3:] = np.where(use[..., None], -lrows[..., k, :], Ja[..., 3 + k, 3:])
+        mask[..., 3 + k] = np.where(use, 1.0, mask[..., 3 + k])
+        if r is not None:
+            r[..., 3 + k] = np.where(use, lr[..., k], r[..., 3 + k])
+    return (Ja, Jb, mask) if r is None else (Ja, Jb, mask, r)
+
+
 def _unique_splits(targets):
     """Split positions 0..len-1 into lists whose targets are unique, so that
     ``out[:, t[sel]] += v[:, sel]`` needs no np.add.at (fixed, sequential order)."""
@@ -531,17 +548,8 @@ class _TreeSolver(_Rows):
         a, b, Ja, Jb, mask, r = self.jacobians(js, state, use_bias, bias_rate)
 
         def solve_for(active):
-            m2 = mask.copy()
-            Ja2, Jb2, r2 = Ja.copy(), Jb.copy(), r.copy()
-            for k in range(2):
-                use = active[..., k]
-                row = 3 + k
-                u = use[..., None]
-                Jb2[..., row, 3:] = np.where(u, lrows[..., k, :], Jb2[..., row, 3:])
-                Ja2[..., row, 3:] = np.where(u, -lrows[..., k, :], Ja2[..., row, 3:])
-                r2[..., row] = np.where(use, lr[..., k], r2[..., row])
-                m2[..., row] = np.where(use, 1.0, m2[..., row])
-            return self._factor_solve(Ja2, Jb2, m2, r2, ball_rows=False), Ja2, Jb2  # limit rows in the free slots
+            Ja2, Jb2, m2, r2 = _in_limit_slots(active, lrows, lr, Ja, Jb, mask, r)
+            return self._factor_solve(Ja2, Jb2, m2, r2, ball_rows=False), Ja2, Jb2
 
         return (a, b, *self._active_set(js, state, a, b, mask, lrows, lr, sigma, exists, mass_scale, impulse_scale,
                                         solve_for))
@@ -576,12 +584,7 @@ class _TreeSolver(_Rows):
         B_cols (W, 6 nj, k) and the limit rows' block B_lim (W, k, k), k the
         tree's possible limit rows (``limit_candidates``)."""
         blocks = self.blocks(js, state, self)
-        Ja, Jb, mask = blocks[7].copy(), blocks[8].copy(), blocks[9].copy()
-        for k in range(2):
-            e = exists[..., k]
-            Jb[..., 3 + k, 3:] = np.where(e[..., None], lrows[..., k, :], Jb[..., 3 + k, 3:])
-            Ja[..., 3 + k, 3:] = np.where(e[..., None], -lrows[..., k, :], Ja[..., 3 + k, 3:])
-            mask[..., 3 + k] = np.where(e, 1.0, mask[..., 3 + k])
+        Ja, Jb, mask = _in_limit_slots(exists, lrows, None, *blocks[7:10])
         factors = self._factor(Ja, Jb, mask, ball_rows=False)
         cj, cs = self.limit_candidates
         W, nj, k = mask.shape[0], mask.shape[1], cj.size
