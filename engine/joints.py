@@ -160,14 +160,16 @@ class JointSet:
                 self.tree.limit_candidates = (np.concatenate((twist_j, swing_j)),
                                               np.repeat([0, 1], (twist_j.size, swing_j.size)))
         # Loop-closing joints solved with the tree (``_TreeSolver.solve_with_loops``),
-        # unless their rows stay Gauss-Seidel; not with limits in the tree, nor
-        # with rigid tree joints: they gained energy (the 10x10 sphere grid at
-        # ACCURATE: 103 J in 10 s with rigid loop rows, 11 J with their
-        # regularisation at 1e-3; chain_loop with soft ones: 62 J).
+        # unless their rows stay Gauss-Seidel; not with limits in the tree (the
+        # loop solve has no active set). With rigid tree joints too: the
+        # articulation takes loop_joint_hertz (``_choose_tree_softness``), as
+        # rigid loop rows gained energy (the 10x10 sphere grid at ACCURATE: 103 J
+        # in 10 s, 11 J with their regularisation at 1e-3). Left to Gauss-Seidel
+        # at CLOSED_JOINTS, chain_loop opened by 1.85 cm and the grid by 7.5 cm
+        # in their quick runs; solved here, 0.20 and 1.2 mm.
         self.loop_rows = None
         in_loop_solve = np.zeros(J, dtype=bool)
-        if (self.tree is not None and settings.joint_loops == "exact" and not self.tree.limits
-                and math.isfinite(settings.joint_hertz)):
+        if self.tree is not None and settings.joint_loops == "exact" and not self.tree.limits:
             moving = model.dynamic[self.parent] | model.dynamic[self.child]
             loops = np.flatnonzero(~in_tree & moving)
             if loops.size:

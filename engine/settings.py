@@ -60,11 +60,13 @@ ACCURATE = {"substeps": 16, "joint_hertz": math.inf, "joint_limits_in_tree": Tru
 #: dropped ragdolls rest (0.0081 and 0.014 m/s from 5 s in ``ragdoll_drops``
 #: and ``ragdoll_drops_random``; 0.154 and 0.080 with the joints solved
 #: first, a foot twitching against its ankle limit) but land deeper
-#: (3.9-5.2 cm against 3.2-3.5). Not for articulations with loops: limits
-#: in the tree leave their loop rows to Gauss-Seidel, and the
-#: 10x10 sphere grid opened by 7.5 cm in 2 s (defaults 0.91 cm), the chain
-#: pinned at both ends by 1.9 cm (0.09 cm). The step costs 1.0-1.1 times the
-#: defaults' for one ragdoll on the ground and 1.75 times at 64 worlds
+#: (3.9-5.2 cm against 3.2-3.5). Articulations with loops are solved with
+#: their loops in the tree at ``loop_joint_hertz`` (``joint_loops``): the
+#: 10x10 sphere grid held 1.2 mm over 10 s (defaults 9.1 mm), the chain
+#: pinned at both ends 0.20 mm (1.4 mm); but in a scene whose tree joints
+#: have limits (joint_limits_in_tree) the loop rows stay Gauss-Seidel. The
+#: step costs 1.0-1.1 times the defaults' for one ragdoll on the ground and
+#: 1.75 times at 64 worlds
 #: (``benchmarks.throughput --worlds 1 64 --scenes ragdoll_ground``), and
 #: its contact response matrices take 195-225 KB per world (defaults 64-91).
 CLOSED_JOINTS = {"joint_hertz": math.inf, "joint_limits_in_tree": True, "joint_projection_slop": 0.0002,
@@ -125,11 +127,18 @@ class Settings:
         loop rows, about 11 MB per world for that grid (nothing for a scene
         without loops); batches go through in chunks of worlds of at most
         256 MB. Exact loop rows take the softness of their articulation's
-        tree joints (``loop_joint_hertz``; the grid 0.91 cm since). Only with
-        soft tree joints (finite ``joint_hertz``; not at ``ACCURATE``): rigid, chain_loop held 0.2 mm
-        over 10 s at ``ACCURATE``, but the grid gained 103 J (11 J with the
-        regularisation below at 1e-3); and not when ``joint_limits_in_tree``
-        puts limits in the tree; those loops stay Gauss-Seidel. Redundant loop rows (a chain pinned taut at both
+        tree joints (``loop_joint_hertz``; the grid 0.91 cm since), also
+        where the other articulations' tree joints are rigid (``ACCURATE``,
+        ``CLOSED_JOINTS``; rigid loop rows gained energy: the grid 103 J in
+        10 s at ``ACCURATE``, 11 J with the regularisation below at 1e-3):
+        with the 0.2 mm post-stabilisation of those presets the full 10 s
+        held the grid within 1.2 mm at ``CLOSED_JOINTS`` and 0.20 mm at
+        ``ACCURATE`` (chain_loop 0.20 mm at both; left Gauss-Seidel, as they
+        were before, 7.5 cm in 2 s and 1.85 cm in 3 s at ``CLOSED_JOINTS``),
+        the grid's step at ``ACCURATE`` 3.2 times as long as with
+        Gauss-Seidel loop rows (161 against 50 s for the 10 s). Not when
+        ``joint_limits_in_tree`` puts limits of the scene in the tree (the
+        loop solve has no active set): those loops stay Gauss-Seidel. Redundant loop rows (a chain pinned taut at both
         ends, the grid's pinned edge) carry a load along the redundant
         direction that the regularisation (1e-6 of the largest diagonal
         entry), not the physics, sets: it moves nothing, but a break threshold
