@@ -53,8 +53,11 @@ class ArticulatedContacts:
     def __init__(self, model, state, cr, js):
         tree = js.tree
         rows = np.flatnonzero(cr.jointed & ~cr.dyn_a & cr.dyn_b)
+        if tree is not None and tree.exact_loop is not None:
+            # Articulations closed by loops keep the body-by-body rows: Z below knows the tree rows only.
+            rows = rows[~tree.exact_loop[tree.body_component[cr.b[rows]]]]
         self.rows = rows
-        self.empty = rows.size == 0 or tree is None or js.loop_rows is not None
+        self.empty = rows.size == 0 or tree is None
         if self.empty:
             return
         W, N, P = state.num_worlds, model.num_bodies, cr.valid.shape[1]

@@ -295,6 +295,7 @@ class _TreeSolver(_Rows):
         self.groups = [_Group(ids, par, splits, nb, ~has_child[ids] if ids[0] < nb else ball[ids - nb])
                        for ids, par, splits in t.groups]
         self.limits = False
+        self.exact_loop = None  # (articulations + 1,) bool: closed by loops solved with the tree (JointSet)
         self.active_set_passes = settings.joint_active_set_passes
         self.component, self.num_components, self.body_component = t.component, t.num_components, t.body_component
         self.geometric_weight = None  # per step: 1, or (W, tree joints) weights, or None

@@ -63,8 +63,9 @@ ACCURATE = {"substeps": 16, "joint_hertz": math.inf, "joint_limits_in_tree": Tru
 #: (3.9-5.2 cm against 3.2-3.5). Articulations with loops are solved with
 #: their loops in the tree at ``loop_joint_hertz`` (``joint_loops``): the
 #: 10x10 sphere grid held 1.2 mm over 10 s (defaults 9.1 mm), the chain
-#: pinned at both ends 0.20 mm (1.4 mm); but in a scene whose tree joints
-#: have limits (joint_limits_in_tree) the loop rows stay Gauss-Seidel. The
+#: pinned at both ends 0.20 mm (1.4 mm); their contacts keep the
+#: body-by-body rows; in a scene whose tree joints have limits
+#: (joint_limits_in_tree) the loop rows stay Gauss-Seidel. The
 #: step costs 1.0-1.1 times the defaults' for one ragdoll on the ground and
 #: 1.75 times at 64 worlds
 #: (``benchmarks.throughput --worlds 1 64 --scenes ragdoll_ground``), and
@@ -143,7 +144,7 @@ class Settings:
         direction that the regularisation (1e-6 of the largest diagonal
         entry), not the physics, sets: it moves nothing, but a break threshold
         reads it (a taut 3-link chain of 2.9 N: up to 1400 N). For breakable
-        joints in such loops use "gauss_seidel".
+        joints in such loops use "gauss_seidel", with the presets too.
     joint_geometric_stiffness: with the tree solver, add to every tree joint
         (free articulations: ``free_joint_geometric_stiffness``) its
         geometric stiffness h²|F|(|r|² I - r rᵀ)/|r| to the inertia its bodies

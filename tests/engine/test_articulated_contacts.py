@@ -133,3 +133,30 @@ def test_batch_replays_bit_for_bit():
     for _ in range(50):
         e.step(model, alone)
     assert np.allclose(alone.position[0], runs[0].position[2], rtol=0, atol=1e-9)
+
+
+def test_articulations_closed_by_loops_keep_body_rows_and_the_others_do_not():
+    """A ring of three balls on ball joints (a loop, solved with the tree) and
+    a chain of two, both resting on the ground, at ``engine.CLOSED_JOINTS``:
+    the chain's contact rows are solved in contact space, the ring's keep the
+    body-by-body sweep (the response knows the tree rows only)."""
+    b = e.SceneBuilder()
+    b.add_ground()
+    r = 0.05
+    ring = [(0.0, 0.0), (0.2, 0.0), (0.1, 0.17)]
+    for i, (x, y) in enumerate(ring):
+        b.add_body(f"ring{i}", e.Sphere(r), mass=1.0, position=(x, y, r))
+    for i in range(3):
+        (x0, y0), (x1, y1) = ring[i], ring[(i + 1) % 3]
+        b.add_ball(f"ring_j{i}", f"ring{i}", f"ring{(i + 1) % 3}", anchor=((x0 + x1) / 2, (y0 + y1) / 2, r))
+    for i in range(2):
+        b.add_body(f"chain{i}", e.Sphere(r), mass=1.0, position=(1.0 + 0.2 * i, 0.0, r))
+    b.add_ball("chain_j", "chain0", "chain1", anchor=(1.1, 0.0, r))
+    model = b.build().with_settings(**e.CLOSED_JOINTS)
+    assert model.joints.loop_rows is not None
+    state = model.initial_state(1)
+    e.step(model, state)
+    rows, _, art = _prepared(model, state)
+    assert not art.empty
+    names = {model.body_names[i] for i in rows.b[art.rows]}
+    assert names == {"chain0", "chain1"}
