@@ -218,8 +218,8 @@ class _Group:
     own metric) of a body group, the ball joints (no lock rows: one 3x3 block)
     of a joint group; ``full`` are the others."""
 
-    def __init__(self, ids, par, splits, nb, simple):
-        self.ids, self.par, self.splits = ids, par, splits
+    def __init__(self, ids, par, scatter, nb, simple):
+        self.ids, self.par, self.scatter = ids, par, scatter
         self.body = bool(ids[0] < nb)
         self.has_parent = bool(par[0] >= 0)
         self.pj = par - nb  # body groups: parent joint of each body
@@ -252,8 +252,8 @@ class _Rows:
     def __init__(self, joints, kind, parent, child):
         self.joints, self.kind = joints, kind
         # Scatters of the rows' impulses onto their bodies.
-        self.split_a = _Scatter(parent)
-        self.split_b = _Scatter(child)
+        self.scatter_a = _Scatter(parent)
+        self.scatter_b = _Scatter(child)
         # Angular lock rows used per kind (rows 3..5).
         self.ang_mask = np.zeros((len(joints), 3))
         self.ang_mask[kind == HINGE, 1:] = 1.0
@@ -292,8 +292,8 @@ class _TreeSolver(_Rows):
         has_child = np.zeros(t.n_nodes, dtype=bool)
         has_child[t.node_parent[t.node_parent >= 0]] = True
         ball = self.kind == BALL
-        self.groups = [_Group(ids, par, splits, nb, ~has_child[ids] if ids[0] < nb else ball[ids - nb])
-                       for ids, par, splits in t.groups]
+        self.groups = [_Group(ids, par, scatter, nb, ~has_child[ids] if ids[0] < nb else ball[ids - nb])
+                       for ids, par, scatter in t.groups]
         self.limits = False
         self.exact_loop = None  # (articulations + 1,) bool: closed by loops solved with the tree (JointSet)
         self.active_set_passes = settings.joint_active_set_passes
@@ -648,8 +648,8 @@ class _TreeSolver(_Rows):
         tree's joints (or of ``rows``)."""
         rows = self if rows is None else rows
         out = np.zeros((x.shape[0], self.num_bodies, 6, x.shape[-1]))
-        _scatter_add(out, rows.split_a, _mtm(JA, x))
-        _scatter_add(out, rows.split_b, _mtm(JB, x))
+        _scatter_add(out, rows.scatter_a, _mtm(JA, x))
+        _scatter_add(out, rows.scatter_b, _mtm(JB, x))
         return out
 
     def solve_coupled(self, tree_rows, loop_rows, rows, inv_metric_times, M=None, M_inv=None):
@@ -793,7 +793,7 @@ class _TreeSolver(_Rows):
                 if g.has_parent:
                     Jg = Jp.take(g.jids, 1)
                     Lg = _mm(Di, Jg)
-                    _scatter_add(acc_b, g.splits, _mtm(Jg, Lg))
+                    _scatter_add(acc_b, g.scatter, _mtm(Jg, Lg))
             Dinv.append(Di)
             L.append(Lg if g.has_parent else None)
         return Dinv, L
@@ -835,7 +835,7 @@ class _TreeSolver(_Rows):
             else:
                 b = R.take(g.jids, 1) - acc_j.take(g.jids, 1)
                 if g.has_parent:
-                    _scatter_add(acc_b, g.splits, _mtm(Lg, b))
+                    _scatter_add(acc_b, g.scatter, _mtm(Lg, b))
             bp.append(b)
         x_b = np.empty((W, nb, 6, k))
         x_j = np.empty(R.shape)
