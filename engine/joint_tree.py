@@ -73,8 +73,8 @@ def _in_limit_slots(on, lrows, lr, Ja, Jb, mask, r=None):
 
 #: Below this many elements of v per part, ``_scatter_add`` takes one
 #: np.add.at (about 1.5 µs + 7 ns an element) instead of one indexed add per
-#: part (about 3 µs a part): 3x faster for one world's 6x6 blocks, 2-3x slower
-#: for 32 worlds'.
+#: part (about 3 µs a part): 3x faster on one world's 6x6 blocks, 2-3x slower
+#: on 32 worlds' (numpy 2.4, this machine).
 SCATTER_ADD_AT_PER_PART = 400
 
 
