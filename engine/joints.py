@@ -223,9 +223,9 @@ class JointSet:
             exact_loop[t.body_component[self.parent[in_loop_solve]]] = True
             exact_loop[t.body_component[self.child[in_loop_solve]]] = True
             exact_loop[-1] = False
-            self._loop_tree_joints = exact_loop[t.component] if exact_loop.any() else None
             # Per articulation (last entry: no articulation, False): closed by loops solved with the tree.
             t.exact_loop = exact_loop if exact_loop.any() else None
+            self._loop_tree_joints = None if t.exact_loop is None else exact_loop[t.component]
             tree_pos = np.full(J, -1, dtype=np.int64)
             tree_pos[t.joints] = np.arange(t.joints.size)
             pos = tree_pos[self.gs_limit]
