@@ -34,14 +34,17 @@ CONTACT_COLORINGS = ("ordered", "greedy")
 #: With the joint post-stabilisation at a 0.2 mm slop (``joint_projection_*``,
 #: below; the defaults project only beyond 4 cm) the humanoid under random
 #: maximum torques on the ground keeps every anchor within 0.20 mm (without:
-#: 9.1 mm; 8 worlds x 200 steps) for 5% more time per step. A ragdoll dropped
-#: upright from 1 m still moves at up to 2.3 cm/s 3-5 s later (6.5 cm/s without
-#: the post-stabilisation; the defaults: under 1 cm/s), and over the six drops
-#: of ``benchmarks.stability`` ragdoll_drops at up to 0.42 m/s after 3 s (the
-#: defaults: 4.2 cm/s): the Gauss-Seidel contacts fight the rigid joints, so
-#: the defaults stay soft.
+#: 9.1 mm; 8 worlds x 200 steps) for 5% more time per step.
+#: The contacts of articulations on static bodies are solved with the
+#: articulation's response (``articulated_contacts``, as in ``CLOSED_JOINTS``):
+#: the body-by-body Gauss-Seidel contacts fight rigid joints solved before
+#: them and share no friction load through them. With those, the six drops of
+#: ``benchmarks.stability --quick`` ragdoll_drops still moved at 0.29 m/s
+#: after 3 s and landed 4.3 cm deep, and three hinged boxes on a 24° incline
+#: (μs 0.5) crept 4.2 mm in 5 s; with these, 0.023 m/s, 1.7 cm and no creep
+#: (tests/engine/test_contacts.py), for 4-10% more time per step on the ragdoll.
 ACCURATE = {"substeps": 16, "joint_hertz": math.inf, "joint_limits_in_tree": True, "joint_projection_slop": 0.0002,
-            "free_joint_geometric_stiffness": False}
+            "free_joint_geometric_stiffness": False, "articulated_contacts": True}
 
 #: Settings that keep a ragdoll's joints closed on the ground at the default
 #: substeps (``Settings(**CLOSED_JOINTS)``): rigid tree joints with their limits
@@ -53,21 +56,20 @@ ACCURATE = {"substeps": 16, "joint_hertz": math.inf, "joint_limits_in_tree": Tru
 #: the limits hold exactly at the end of each solve. Measured against the
 #: defaults (README, "Articulated contacts"): benchmarks.accuracy's ragdoll
 #: under random torques keeps its joint anchors within 0.2 mm (defaults
-#: 4.0 cm), its limits give by 0.49 rad (ACCURATE 0.011); every ragdoll
-#: case of ``benchmarks.stability --quick`` holds 0.2 mm but the 100 m/s
-#: impact (1.55 cm: it rebounds, a body at up to 88 m/s, and a body still
-#: moves at 30 m/s 3-4 s after it, where the defaults rest by 2.7 s);
-#: dropped ragdolls rest (0.0081 and 0.014 m/s from 5 s in ``ragdoll_drops``
-#: and ``ragdoll_drops_random``; 0.154 and 0.080 with the joints solved
-#: first, a foot twitching against its ankle limit) but land deeper
-#: (3.9-5.2 cm against 3.2-3.5). Articulations with loops are solved with
+#: 4.0 cm), its limits give by 0.65 rad (ACCURATE 0.005); every ragdoll
+#: case of ``benchmarks.stability --quick`` holds 0.2 mm, the 100 m/s impact
+#: too, but after it a body still moves at 17 m/s 3-4 s later (a body at up
+#: to 72 m/s; the defaults rest by 2.7 s); dropped ragdolls rest (0.0088 and
+#: 0.0004 m/s from 5 s in ``ragdoll_drops`` and ``ragdoll_drops_random``;
+#: 0.154 and 0.080 with the joints solved first, a foot twitching against
+#: its ankle limit) but land deeper (4.7-5.2 cm against 3.2-3.5). Articulations with loops are solved with
 #: their loops in the tree at ``loop_joint_hertz`` (``joint_loops``): the
 #: 10x10 sphere grid held 1.2 mm over 10 s (defaults 9.1 mm), the chain
 #: pinned at both ends 0.20 mm (1.4 mm); their contacts keep the
 #: body-by-body rows; in a scene whose tree joints have limits
 #: (joint_limits_in_tree) the loop rows stay Gauss-Seidel. The
-#: step costs 1.0-1.1 times the defaults' for one ragdoll on the ground and
-#: 1.75 times at 64 worlds
+#: step costs 1.0-1.3 times the defaults' for one ragdoll on the ground and
+#: 1.75-1.78 times at 64 worlds
 #: (``benchmarks.throughput --worlds 1 64 --scenes ragdoll_ground``), and
 #: its contact response matrices take 195-225 KB per world (defaults 64-91).
 CLOSED_JOINTS = {"joint_hertz": math.inf, "joint_limits_in_tree": True, "joint_projection_slop": 0.0002,
