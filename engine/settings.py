@@ -182,7 +182,10 @@ class Settings:
         them rigid (full bias C/h). The default 60 Hz, ζ 2 lets a dropped
         ragdoll come to rest; rigid, its contacts (which see one body's mass)
         and the exact tree solve fight, and it chatters at 5-9 cm/s 3-6 s after
-        landing.
+        landing; nor do rigid joints share friction load between bodies on
+        the ground (three hinged boxes slide off a 24° incline that holds
+        each box alone, ``tests/engine/test_contacts.py``). Rigid joints want
+        ``articulated_contacts`` (``ACCURATE``, ``CLOSED_JOINTS``).
     loop_joint_hertz, loop_joint_damping_ratio: the same for an articulation
         with loop-closing joints solved with the tree (``joint_loops``
         "exact"), its tree and loop rows alike; capped at half the substep
