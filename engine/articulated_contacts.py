@@ -134,7 +134,8 @@ class ArticulatedContacts:
     def _velocities(self, state):
         """Column velocities J_c P v (W, columns) after the joint solve that
         follows: P v = v - M⁻¹J_tᵀK⁻¹J_t v, the velocities projected onto the
-        tree joints' rows (without their bias). As Z = P M⁻¹J_cᵀ and
+        tree joints' rows (exact for the relax solve's unbiased rows; the
+        limit rows and the bias are not in P). As Z = P M⁻¹J_cᵀ and
         M⁻¹PᵀM = P, J_c P v = Zᵀ M v: one product with the momenta. Read
         unprojected (J_c v), the columns saw a foot turned freely by its
         ankle motor within the substep, which the joint solve then takes

@@ -34,15 +34,19 @@ CONTACT_COLORINGS = ("ordered", "greedy")
 #: With the joint post-stabilisation at a 0.2 mm slop (``joint_projection_*``,
 #: below; the defaults project only beyond 4 cm) the humanoid under random
 #: maximum torques on the ground keeps every anchor within 0.20 mm (without:
-#: 9.1 mm; 8 worlds x 200 steps) for 5% more time per step.
+#: 9.1 mm with body-by-body contacts, 8 worlds x 200 steps; 0.53 mm with the
+#: articulated contacts below, 2 worlds x 40) for 5% more time per step.
 #: The contacts of articulations on static bodies are solved with the
 #: articulation's response (``articulated_contacts``, as in ``CLOSED_JOINTS``):
 #: the body-by-body Gauss-Seidel contacts fight rigid joints solved before
 #: them and share no friction load through them. With those, the six drops of
 #: ``benchmarks.stability --quick`` ragdoll_drops still moved at 0.29 m/s
-#: after 3 s and landed 4.3 cm deep, and three hinged boxes on a 24° incline
-#: (μs 0.5) crept 4.2 mm in 5 s; with these, 0.023 m/s, 1.7 cm and no creep
-#: (tests/engine/test_contacts.py), for 4-10% more time per step on the ragdoll.
+#: 5-7 s after them and landed 4.3 cm deep, and three hinged boxes on a 24°
+#: incline (μs 0.5) crept 4.2 mm in 5 s; with these, 0.023 m/s (the bound
+#: 0.02), 1.7 cm and no creep (tests/engine/test_contacts.py), for 4-11% more
+#: time per step on the ragdoll. Deeper with these: the 100 m/s impact (23
+#: against 16 cm, a body at 4.25 against 2.15 m/s 3-4 s after it) and the
+#: ragdoll under random maximum torques (6.4 against 5.8 cm).
 ACCURATE = {"substeps": 16, "joint_hertz": math.inf, "joint_limits_in_tree": True, "joint_projection_slop": 0.0002,
             "free_joint_geometric_stiffness": False, "articulated_contacts": True}
 
@@ -332,19 +336,22 @@ class Settings:
         0.2 mm projection slop opened 6.1 cm and still moved at 0.42 m/s
         after 3 s, with it 0.2 mm and 0.082 m/s (joints solved first, as
         then); with its contacts solved before the joints (``step``, now,
-        every contact row of the scene, the body-by-body ones too) they rest
-        at 0.0081 m/s from 5 s, and every ragdoll hard case holds 0.2 mm but
-        the 100 m/s impact (1.55 cm; quick runs; 2-9 cm without).
-        At the defaults (soft joints) it is no help: the drops rest worse
-        (``ragdoll_drops`` and ``ragdoll_drops_random`` 0.084 and 0.10 m/s
-        from 5 s against 0.0002 and 0.005) and open by 1.8-3.3 cm (4.0-7.1
+        every contact row of the scene, the body-by-body ones too) and its
+        columns reading the velocities the joint solve leaves
+        (``ArticulatedContacts._velocities``) they rest at 0.0088 m/s from
+        5 s, and every ragdoll hard case holds 0.2 mm (quick runs; 2-9 cm
+        without).
+        At the defaults (soft joints) it helps little: the drops rest
+        (``ragdoll_drops`` and ``ragdoll_drops_random`` 0.0089 and 0.0067 m/s
+        from 5 s against 0.0002 and 0.005; 0.084 and 0.10 before the columns
+        read the joint solve's velocities) and open by 2.9-3.6 cm (4.0
         without); with the joints solved first the random drops gained
         303 J. Cost (``benchmarks.throughput``, ragdoll on the ground under
         random maximum torques): with the default joints about the same at
         W = 1 and 1.1x at W = 64, with rigid joints 2.1x and 1.7x the rigid
         joints' without it (``CLOSED_JOINTS``, measured before its limits' active
         set went to one factorisation a set of positions: 1.4-1.7x and 2.1-2.5x the
-        defaults'; now 1.0-1.1x and 1.75x); its per-step matrices grow with the contact rows per world. README:
+        defaults'; now 1.0-1.3x and 1.75-1.78x); its per-step matrices grow with the contact rows per world. README:
         "Articulated contacts".
     max_push_out: m/s, the largest speed the position bias may add.
     restitution_threshold: m/s, closing speeds below it do not bounce.

@@ -202,3 +202,37 @@ def test_contacts_read_the_velocities_the_joint_solve_leaves():
     scale = np.abs(expected).max()
     assert np.abs(got - expected).max() <= 1e-9 * scale
     assert np.abs(raw - expected).max() > 0.1 * scale  # the unprojected reading differs: the test can fail
+
+
+def test_column_velocities_match_the_joint_solve_across_worlds_with_uneven_contacts():
+    """Three hinged boxes (no limits: the joint solve is the projection P
+    alone) in three worlds, the second lifted clear of the ground, so that
+    the worlds' column counts differ and the columns are padded: with random
+    velocities, each world's columns read what J_c gives after the joint
+    solve itself (rigid rows, no bias)."""
+    b = e.SceneBuilder(articulated_contacts=True, **RIGID)
+    b.add_ground(material="wood")
+    for i in range(3):
+        b.add_body(f"box{i}", e.Box((0.2, 0.15, 0.1)), mass=1.0 + i, position=(0.42 * i, 0.0, 0.1),
+                   material="wood")
+    for i in range(2):
+        b.add_hinge(f"hinge{i}", f"box{i}", f"box{i + 1}", anchor=(0.42 * i + 0.21, 0.0, 0.1))
+    model = b.build()
+    state = model.initial_state(3)
+    state.position[1, 1:, 2] += 1.0
+    rows, joints, art = _prepared(model, state)
+    assert not art.empty
+    counts = art.valid.sum(axis=1)
+    assert counts[0] > 0 and counts[1] == 0 and counts[2] > 0
+    rng = np.random.default_rng(1)
+    state.velocity[:, 1:] += rng.normal(0.0, 0.5, state.velocity[:, 1:].shape)
+    state.angular_velocity[:, 1:] += rng.normal(0.0, 3.0, state.angular_velocity[:, 1:].shape)
+    got = art._velocities(state)
+    raw = np.einsum("wck,wck->wc", art.J, np.concatenate((state.velocity, state.angular_velocity),
+                                                          axis=-1)[art.world, art.body])
+    joints.solve(model, state, model.settings.dt / model.settings.substeps, False)
+    v = np.concatenate((state.velocity, state.angular_velocity), axis=-1)
+    expected = np.einsum("wck,wck->wc", art.J, v[art.world, art.body])
+    scale = np.abs(expected).max()
+    assert np.abs(got - expected).max() <= 1e-9 * scale
+    assert np.abs(raw - expected).max() > 0.1 * scale
