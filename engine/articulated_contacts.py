@@ -111,6 +111,7 @@ class ArticulatedContacts:
         self.mu = np.zeros((W, C))
         self.mu[self.wi, self.col[..., 0]] = cr.mu[rows]
         self.normals = np.flatnonzero(self.valid[:, ::3].any(axis=0)) * 3  # normal columns valid in some world
+        self.sweeps = model.settings.articulated_contact_sweeps
 
     # ------------------------------------------------------------------ impulses
     def _gather(self, cr):
@@ -159,8 +160,9 @@ class ArticulatedContacts:
 
     # --------------------------------------------------------------------- solve
     def solve(self, state, cr, h, use_bias):
-        """One projected Gauss-Seidel sweep over the columns (``contact_solver``'s
-        per-point rules with the effective masses 1 / A_ii), then Z Δλ."""
+        """``Settings.articulated_contact_sweeps`` projected Gauss-Seidel sweeps
+        over the columns (``contact_solver``'s per-point rules with the
+        effective masses 1 / A_ii), then Z Δλ."""
         sep = self._normal_columns(_separation(state, cr._block(self.rows)))
         open_ = sep > 0
         if use_bias and not cr.thesis:
@@ -174,36 +176,40 @@ class ArticulatedContacts:
         u = self._velocities(state)
         lam = self._gather(cr)
         start = lam.copy()
-        A, valid = self.A_columns, self.valid
-        # A column's impulse changes only at its own update, so the terms read
-        # from the sweep's start (the impulse term, the restitution record) are
-        # taken out of the loop; u_before: each normal column's velocity at its update.
-        isc_lam = None if isc is None else isc * start
-        u_before = np.empty(u.shape)
-        for i in self.normals:
-            ui = u_before[:, i] = u[:, i]
-            d = gain[:, i] * (ui + bias[:, i])
-            if isc_lam is not None:
-                d = d - isc_lam[:, i]
-            new = np.where(valid[:, i], np.maximum(start[:, i] + d, 0.0), 0.0)
-            u += A[:, i] * (new - start[:, i])[:, None]
-            lam[:, i] = new
+        A, valid, n = self.A_columns, self.valid, self.normals
         # For restitution: each point's closing speed and gap just before it first takes load.
-        n = self.normals
-        first = ~(self._normal_columns(cr.max_lam_n[self.rows]) > 0)[:, n] & (lam[:, n] > 0)
+        loaded = self._normal_columns(cr.max_lam_n[self.rows])[:, n] > 0
         v_close = self._normal_columns(cr.vn_close[self.rows])
         s_close = self._normal_columns(cr.s_close[self.rows])
-        v_close[:, n] = np.where(first, u_before[:, n], v_close[:, n])
-        s_close[:, n] = np.where(first, sep[:, n], s_close[:, n])
+        for _ in range(self.sweeps):
+            # A column's impulse changes only at its own update, so the terms
+            # read from the sweep's start (the impulse term, the restitution
+            # record) are taken out of the loop; u_before: each normal
+            # column's velocity at its update.
+            sweep_start = lam.copy()
+            isc_lam = None if isc is None else isc * sweep_start
+            u_before = np.empty(u.shape)
+            for i in n:
+                ui = u_before[:, i] = u[:, i]
+                d = gain[:, i] * (ui + bias[:, i])
+                if isc_lam is not None:
+                    d = d - isc_lam[:, i]
+                new = np.where(valid[:, i], np.maximum(sweep_start[:, i] + d, 0.0), 0.0)
+                u += A[:, i] * (new - sweep_start[:, i])[:, None]
+                lam[:, i] = new
+            first = ~loaded & (lam[:, n] > 0)
+            v_close[:, n] = np.where(first, u_before[:, n], v_close[:, n])
+            s_close[:, n] = np.where(first, sep[:, n], s_close[:, n])
+            loaded |= first
+            for i in n:
+                t1 = lam[:, i + 1] - self.m[:, i + 1] * u[:, i + 1]
+                t2 = lam[:, i + 2] - self.m[:, i + 2] * u[:, i + 2]
+                scale = np.where(valid[:, i], _coulomb_scale(t1, t2, self.mu[:, i] * lam[:, i]), 0.0)
+                t1, t2 = t1 * scale, t2 * scale
+                u += A[:, i + 1] * (t1 - lam[:, i + 1])[:, None] + A[:, i + 2] * (t2 - lam[:, i + 2])[:, None]
+                lam[:, i + 1], lam[:, i + 2] = t1, t2
         cr.vn_close[self.rows] = v_close[self.wi, self.col[..., 0]]
         cr.s_close[self.rows] = s_close[self.wi, self.col[..., 0]]
-        for i in self.normals:
-            t1 = lam[:, i + 1] - self.m[:, i + 1] * u[:, i + 1]
-            t2 = lam[:, i + 2] - self.m[:, i + 2] * u[:, i + 2]
-            scale = np.where(valid[:, i], _coulomb_scale(t1, t2, self.mu[:, i] * lam[:, i]), 0.0)
-            t1, t2 = t1 * scale, t2 * scale
-            u += A[:, i + 1] * (t1 - lam[:, i + 1])[:, None] + A[:, i + 2] * (t2 - lam[:, i + 2])[:, None]
-            lam[:, i + 1], lam[:, i + 2] = t1, t2
         self._apply(state, lam - start)
         self._scatter(cr, lam)
 

@@ -236,3 +236,27 @@ def test_column_velocities_match_the_joint_solve_across_worlds_with_uneven_conta
     scale = np.abs(expected).max()
     assert np.abs(got - expected).max() <= 1e-9 * scale
     assert np.abs(raw - expected).max() > 0.1 * scale
+
+
+def test_more_sweeps_converge_on_the_soft_contacts_of_a_resting_chain():
+    """Three hinged 10 kg boxes resting flat at dt 1/30 (rigid joints, no
+    limits): each Box2D soft-step update is an exact Gauss-Seidel update of
+    the regularised system, so further sweeps converge on it and the chain
+    rests a little shallower (measured 0.241 mm with 1 sweep, 0.205 with 8)."""
+    def depth(sweeps):
+        b = e.SceneBuilder(dt=1 / 30, articulated_contacts=True, articulated_contact_sweeps=sweeps, **RIGID)
+        b.add_ground(material="wood")
+        for i in range(3):
+            b.add_body(f"box{i}", e.Box((0.2, 0.15, 0.1)), mass=10.0, position=(0.42 * i, 0.0, 0.1),
+                       material="wood")
+        for i in range(2):
+            b.add_hinge(f"hinge{i}", f"box{i}", f"box{i + 1}", anchor=(0.42 * i + 0.21, 0.0, 0.1))
+        model = b.build()
+        state = model.initial_state(1)
+        for _ in range(90):
+            e.step(model, state)
+        assert np.abs(state.velocity).max() < 1e-6
+        return float(scenarios.ground_penetration(model, state)[0])
+
+    one, eight = depth(1), depth(8)
+    assert 1e-4 < eight < 0.9 * one < 3e-4

@@ -245,6 +245,7 @@ def test_empty_scene():
     (dict(dt=-0.01), "dt must be a positive finite number"),
     (dict(dt=math.nan), "dt must be a number"),
     (dict(substeps=0), "substeps must be an integer >= 1"),
+    (dict(articulated_contact_sweeps=0), "articulated_contact_sweeps must be an integer >= 1"),
     (dict(free_contact_relax_passes=-1), "free_contact_relax_passes must be an integer >= 0"),
     (dict(relax_iterations=1.5), "relax_iterations must be an integer >= 0"),
     (dict(joint_projection_passes=-2), "joint_projection_passes must be an integer >= 0"),
