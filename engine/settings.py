@@ -60,24 +60,27 @@ ACCURATE = {"substeps": 16, "joint_hertz": math.inf, "joint_limits_in_tree": Tru
 #: the limits hold exactly at the end of each solve. Measured against the
 #: defaults (README, "Articulated contacts"): benchmarks.accuracy's ragdoll
 #: under random torques keeps its joint anchors within 0.2 mm (defaults
-#: 4.0 cm), its limits give by 0.65 rad (ACCURATE 0.005); every ragdoll
+#: 4.0 cm), its limits give by 0.63 rad (ACCURATE 0.005); every ragdoll
 #: case of ``benchmarks.stability --quick`` holds 0.2 mm, the 100 m/s impact
-#: too, but after it a body still moves at 17 m/s 3-4 s later (a body at up
-#: to 72 m/s; the defaults rest by 2.7 s); dropped ragdolls rest (0.0088 and
-#: 0.0004 m/s from 5 s in ``ragdoll_drops`` and ``ragdoll_drops_random``;
-#: 0.154 and 0.080 with the joints solved first, a foot twitching against
-#: its ankle limit) but land deeper (4.7-5.2 cm against 3.2-3.5). Articulations with loops are solved with
+#: too (3.2 cm deep), but after it a body still moves at 11 m/s 3-4 s later
+#: (the defaults rest by 2.7 s); dropped ragdolls rest (0.00007 and 0.0005
+#: m/s from 5 s in ``ragdoll_drops`` and ``ragdoll_drops_random``; 0.154 and
+#: 0.080 with the joints solved first, a foot twitching against its ankle
+#: limit) and land 2.0-2.5 cm deep (defaults 3.2-3.5). It takes two
+#: ``articulated_contact_sweeps``: with one its drops landed 4.7-5.2 cm deep
+#: and the impact 18.7 cm; with more, limbs pressed against limits the
+#: response does not know sink further (README). Articulations with loops are solved with
 #: their loops in the tree at ``loop_joint_hertz`` (``joint_loops``): the
 #: 10x10 sphere grid held 1.2 mm over 10 s (defaults 9.1 mm), the chain
 #: pinned at both ends 0.20 mm (1.4 mm); their contacts keep the
 #: body-by-body rows; in a scene whose tree joints have limits
 #: (joint_limits_in_tree) the loop rows stay Gauss-Seidel. The
-#: step costs 1.0-1.3 times the defaults' for one ragdoll on the ground and
-#: 1.75-1.78 times at 64 worlds
+#: step costs 1.4-1.5 times the defaults' for one ragdoll on the ground and
+#: 1.9 times at 64 worlds (one sweep: 1.3 and 1.8)
 #: (``benchmarks.throughput --worlds 1 64 --scenes ragdoll_ground``), and
 #: its contact response matrices take 195-225 KB per world (defaults 64-91).
 CLOSED_JOINTS = {"joint_hertz": math.inf, "joint_limits_in_tree": True, "joint_projection_slop": 0.0002,
-                 "articulated_contacts": True}
+                 "articulated_contacts": True, "articulated_contact_sweeps": 2}
 
 
 @dataclass(frozen=True)
@@ -371,7 +374,8 @@ class Settings:
         can be pressed against a limit the joint solve then holds: the dt
         1/30 drop without the humanoid's limits lands 5.2 / 3.5 / 1.4 / 0.46
         cm deep with 1 / 2 / 4 / 8 sweeps, with them 5.2 / 3.5 / 6.7 / 8.1.
-        1 (every figure in the README) until the limits are in the response.
+        Two in ``CLOSED_JOINTS``; 1 by default and in ``ACCURATE`` (not
+        measured with two) until the limits are in the response.
     max_push_out: m/s, the largest speed the position bias may add.
     restitution_threshold: m/s, closing speeds below it do not bounce.
     linear_slop: m, penetration allowed before position correction pushes out.

@@ -73,8 +73,8 @@ def test_rigid_ragdoll_lands_and_rests_with_its_joints_closed():
     articulation's response (``engine.CLOSED_JOINTS``: RIGID and
     articulated_contacts) the joints stay within 1 mm (the 0.2 mm slop),
     nothing sinks 5 cm, and over the last half second of 3 s nothing moves
-    faster than 1 cm/s (measured: 0.2 mm, 2.7 cm, 6.9 mm/s, still settling;
-    under 1 mm/s with the joints solved before the contacts). The same
+    faster than 1 cm/s (measured with its two sweeps: 0.2 mm, 0.71 cm,
+    0.02 mm/s; one sweep 2.7 cm and 6.9 mm/s, still settling). The same
     joints with the contacts solved body by body still chatter there
     (measured 0.47 m/s): a contact stops the foot alone and the joints hand
     the impulse back."""
@@ -94,7 +94,7 @@ def test_a_limb_resting_against_its_limit_comes_to_rest():
     it twitched at 0.080 m/s to the end of 7 s. With the joints last (their
     limits exact, the soft contacts taking up the rest) nothing moves faster
     than 2 cm/s over the last half second of 7 s (the hard cases' bound;
-    measured 0.006 m/s), the joints within 1 mm."""
+    measured under 0.1 mm/s, 0.006 m/s with one sweep), the joints within 1 mm."""
     _, _, anchor, _, late = _drop(1, 7.0, case=scenes.ragdoll_drops_random(), **e.CLOSED_JOINTS)
     assert anchor < 1e-3
     assert late < 0.02
