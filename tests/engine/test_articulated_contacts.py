@@ -169,7 +169,7 @@ def test_contacts_read_the_velocities_the_joint_solve_leaves():
     contacts are solved before the joints, and a motor torque applied in the
     substep turns a light foot freely until the joint solve takes that back."""
     model, state, *_ = _drop(1, 0.5, articulated_contacts=True, **RIGID)
-    rows, joints, art = _prepared(model, state)
+    _, joints, art = _prepared(model, state)
     assert not art.empty
     rng = np.random.default_rng(0)
     moving = model.dynamic
@@ -220,7 +220,7 @@ def test_column_velocities_match_the_joint_solve_across_worlds_with_uneven_conta
     model = b.build()
     state = model.initial_state(3)
     state.position[1, 1:, 2] += 1.0
-    rows, joints, art = _prepared(model, state)
+    _, joints, art = _prepared(model, state)
     assert not art.empty
     counts = art.valid.sum(axis=1)
     assert counts[0] > 0 and counts[1] == 0 and counts[2] > 0
