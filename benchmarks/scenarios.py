@@ -116,6 +116,28 @@ def sliding_box(settings=None, **kw):
     return b
 
 
+HINGED_HALF = (0.2, 0.15, 0.1)
+
+
+def hinged_boxes(angle_deg=0.0, masses=(1.0, 1.0, 1.0), settings=None, **kw):
+    """Wooden boxes (0.4 x 0.3 x 0.2 m; μs 0.5, μk 0.2) of ``masses`` kg lying
+    flat in a row up a floor tilted by ``angle_deg`` about y, 2 cm apart,
+    each joined to the next by a hinge across the slope midway between them."""
+    th = math.radians(angle_deg)
+    n = np.array([-math.sin(th), 0.0, math.cos(th)])  # the floor's normal
+    up = np.array([math.cos(th), 0.0, math.sin(th)])  # up the slope
+    q = quat_from_axis_angle(np.array([0.0, 1.0, 0.0]), -th)
+    b = e.SceneBuilder(settings=settings, **kw)
+    b.add_ground(normal=n, material="wood")
+    lift = n * HINGED_HALF[2]
+    for i, m in enumerate(masses):
+        b.add_body(f"box{i}", e.Box(HINGED_HALF), mass=m, position=lift + up * 0.42 * i, orientation=q,
+                   material="wood")
+    for i in range(len(masses) - 1):
+        b.add_hinge(f"hinge{i}", f"box{i}", f"box{i + 1}", anchor=lift + up * (0.42 * i + 0.21))
+    return b
+
+
 STACK_HALF = (0.1, 0.1, 0.1)
 
 

@@ -181,12 +181,12 @@ class ArticulatedContacts:
         loaded = self._normal_columns(cr.max_lam_n[self.rows])[:, n] > 0
         v_close = self._normal_columns(cr.vn_close[self.rows])
         s_close = self._normal_columns(cr.s_close[self.rows])
-        for _ in range(self.sweeps):
+        for sweep in range(self.sweeps):
             # A column's impulse changes only at its own update, so the terms
             # read from the sweep's start (the impulse term, the restitution
             # record) are taken out of the loop; u_before: each normal
             # column's velocity at its update.
-            sweep_start = lam.copy()
+            sweep_start = start if sweep == 0 else lam.copy()
             isc_lam = None if isc is None else isc * sweep_start
             u_before = np.empty(u.shape)
             for i in n:

@@ -210,14 +210,7 @@ def test_column_velocities_match_the_joint_solve_across_worlds_with_uneven_conta
     the worlds' column counts differ and the columns are padded: with random
     velocities, each world's columns read what J_c gives after the joint
     solve itself (rigid rows, no bias)."""
-    b = e.SceneBuilder(articulated_contacts=True, **RIGID)
-    b.add_ground(material="wood")
-    for i in range(3):
-        b.add_body(f"box{i}", e.Box((0.2, 0.15, 0.1)), mass=1.0 + i, position=(0.42 * i, 0.0, 0.1),
-                   material="wood")
-    for i in range(2):
-        b.add_hinge(f"hinge{i}", f"box{i}", f"box{i + 1}", anchor=(0.42 * i + 0.21, 0.0, 0.1))
-    model = b.build()
+    model = scenarios.hinged_boxes(masses=(1.0, 2.0, 3.0), articulated_contacts=True, **RIGID).build()
     state = model.initial_state(3)
     state.position[1, 1:, 2] += 1.0
     _, joints, art = _prepared(model, state)
@@ -244,14 +237,8 @@ def test_more_sweeps_converge_on_the_soft_contacts_of_a_resting_chain():
     the regularised system, so further sweeps converge on it and the chain
     rests a little shallower (measured 0.241 mm with 1 sweep, 0.205 with 8)."""
     def depth(sweeps):
-        b = e.SceneBuilder(dt=1 / 30, articulated_contacts=True, articulated_contact_sweeps=sweeps, **RIGID)
-        b.add_ground(material="wood")
-        for i in range(3):
-            b.add_body(f"box{i}", e.Box((0.2, 0.15, 0.1)), mass=10.0, position=(0.42 * i, 0.0, 0.1),
-                       material="wood")
-        for i in range(2):
-            b.add_hinge(f"hinge{i}", f"box{i}", f"box{i + 1}", anchor=(0.42 * i + 0.21, 0.0, 0.1))
-        model = b.build()
+        model = scenarios.hinged_boxes(masses=(10.0, 10.0, 10.0), dt=1 / 30, articulated_contacts=True,
+                                       articulated_contact_sweeps=sweeps, **RIGID).build()
         state = model.initial_state(1)
         for _ in range(90):
             e.step(model, state)

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 import engine as e
+from benchmarks import scenarios
 from engine.diagnostics import linear_momentum
 from engine.materials import Material
 
@@ -68,20 +69,12 @@ def test_ball_with_zero_restitution_stays_down():
     assert abs(state.velocity[0, 1, 2]) < 1e-3
 
 
-def incline(angle_deg, material="wood", **settings):
-    """A builder with ground tilted by ``angle_deg`` about y, its unit normal
-    n, the unit vector up the slope, and the orientation of a box lying flat
-    on it."""
+def box_on_incline(angle_deg, material="wood"):
     th = math.radians(angle_deg)
     n = np.array([-math.sin(th), 0.0, math.cos(th)])
-    up = np.array([math.cos(th), 0.0, math.sin(th)])
-    b = e.SceneBuilder(**settings)
+    b = e.SceneBuilder()
     b.add_ground(normal=n, material=material)
-    return b, n, up, e.math3d.quat_from_axis_angle(np.array([0.0, 1.0, 0.0]), -th)
-
-
-def box_on_incline(angle_deg, material="wood"):
-    b, n, _, q = incline(angle_deg, material)
+    q = e.math3d.quat_from_axis_angle(np.array([0.0, 1.0, 0.0]), -th)
     b.add_body("box", e.Box((0.2, 0.15, 0.1)), mass=2.0, position=n * 0.1, orientation=q, material=material)
     return b.build(), n
 
@@ -116,17 +109,11 @@ def test_box_on_incline_above_friction_angle_slides_with_kinetic_acceleration():
 
 
 def hinged_boxes_on_incline(angle_deg, **settings):
-    """Three 1 kg wooden boxes (μs 0.5, μk 0.2) in a row down an incline,
-    joined by hinges across the slope: a jointed body whose friction must
-    hold its neighbours' share of the load when the normal forces shift
-    between them."""
-    b, n, up, q = incline(angle_deg, **settings)
-    for i in range(3):
-        b.add_body(f"box{i}", e.Box((0.2, 0.15, 0.1)), mass=1.0, position=n * 0.1 + up * 0.42 * i,
-                   orientation=q, material="wood")
-    for i in range(2):
-        b.add_hinge(f"hinge{i}", f"box{i}", f"box{i + 1}", anchor=n * 0.1 + up * (0.42 * i + 0.21))
-    return b.build()
+    """Three 1 kg wooden boxes (μs 0.5, μk 0.2) in a row up an incline,
+    joined by hinges across the slope (``benchmarks.scenarios.hinged_boxes``):
+    a jointed body whose friction must hold its neighbours' share of the load
+    when the normal forces shift between them."""
+    return scenarios.hinged_boxes(angle_deg, **settings).build()
 
 
 PRESETS = {"defaults": {}, "CLOSED_JOINTS": e.CLOSED_JOINTS, "ACCURATE": e.ACCURATE}
@@ -163,9 +150,10 @@ def test_hinged_boxes_above_the_friction_angle_slide_with_kinetic_acceleration(s
     for _ in range(30):
         e.step(model, state)
     v0 = state.velocity[0, 1:].mean(axis=0)
-    for _ in range(60):  # 1 s
+    steps = 60
+    for _ in range(steps):
         e.step(model, state)
-    acc = np.linalg.norm(state.velocity[0, 1:].mean(axis=0) - v0) / 1.0
+    acc = np.linalg.norm(state.velocity[0, 1:].mean(axis=0) - v0) / (steps * model.settings.dt)
     expected = G * (math.sin(math.radians(th)) - 0.2 * math.cos(math.radians(th)))
     assert acc == pytest.approx(expected, rel=0.01)
 
