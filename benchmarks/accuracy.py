@@ -36,7 +36,7 @@ import numpy as np
 
 import engine as e
 from engine import diagnostics as D
-from engine.settings import ACCURATE, CLOSED_JOINTS, Settings
+from engine.settings import ACCURATE, SOFT_JOINTS, Settings
 
 from . import scenarios as sc
 from .common import format_value, machine_note, positive_float, positive_int, print_table, write_json
@@ -64,8 +64,8 @@ GRID = [
     ("dt=1/30 sub=1 relax=0", dict(dt=1 / 30, substeps=1, relax_iterations=0, free_contact_relax_passes=0)),
     ("dt=1/120 sub=8 it=2", dict(dt=1 / 120, substeps=8, iterations=2)),
     ("accurate", dict(ACCURATE)),
-    ("closed joints", dict(CLOSED_JOINTS)),
-    ("closed joints sub=8", dict(CLOSED_JOINTS, substeps=8)),
+    ("soft joints", dict(SOFT_JOINTS)),
+    ("soft joints sub=8", dict(SOFT_JOINTS, substeps=8)),
     ("thesis dt=1/60", dict(substeps=1, **THESIS)),
     ("thesis dt=1/120", dict(dt=1 / 120, substeps=1, **THESIS)),
     ("thesis dt=1/60 sub=4", dict(substeps=4, **THESIS)),
@@ -115,8 +115,8 @@ def settings_dict(label, s: Settings, **extra):
          "joint_hertz": s.joint_hertz, "joint_damping_ratio": s.joint_damping_ratio,
          "free_joint_hertz": s.free_joint_hertz, "free_joint_geometric_stiffness": s.free_joint_geometric_stiffness,
          "joint_relax": s.joint_relax, "joint_projection_passes": s.joint_projection_passes,
-         "contact_hertz": s.contact_hertz, "joint_limits_in_tree": s.joint_limits_in_tree,
-         "joint_projection_slop": s.joint_projection_slop, "articulated_contacts": s.articulated_contacts,
+         "contact_hertz": s.contact_hertz, "joint_limits_in_tree": s.limits_in_tree,
+         "joint_projection_slop": s.joint_projection_slop, "articulated_contacts": s.contacts_articulated,
          "thesis_baseline": s.solver == "thesis" and s.integrator == "euler"}
     d.update(extra)
     return d

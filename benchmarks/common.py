@@ -161,7 +161,9 @@ def settings_json(text: str) -> dict:
                                          f"settings: {', '.join(names)}")
     for name, v in value.items():
         default = getattr(defaults, name)
-        if isinstance(default, bool):
+        if default is None:  # a flag whose default is "on wherever it can act"
+            ok, want = v is None or isinstance(v, bool), "true, false or null (on wherever it can act)"
+        elif isinstance(default, bool):
             ok, want = isinstance(v, bool), "true or false"
         elif isinstance(default, int):
             ok, want = isinstance(v, int) and not isinstance(v, bool), "an integer"

@@ -66,29 +66,49 @@ def project_joints(js, model, state):
     """Project the tree joints of ``js`` in place (see the module docstring);
     worlds with no error beyond the slop keep their state bit for bit."""
     tree = js.tree
-    s = js.settings
     keep = ~tree.loop_touched[tree.component]
     if not keep.any():
         return
-    slop = (s.joint_projection_slop, s.joint_projection_slop / ANGULAR_SLOP_LEVER)
-    need = _worlds_beyond_slop(js, tree, state, keep, tuple(x * (1.0 + TOLERANCE) for x in slop))
+    slop = _slops(js, state.num_worlds)
+    need = _worlds_beyond_slop(js, tree, state, keep, [tuple(x * (1.0 + TOLERANCE) for x in sl) for sl in slop])
     if not need.any():
         return  # the usual step: no Jacobians built
     # Only the worlds beyond the slop are projected, on a copy of their
     # positions (each world's arithmetic is its own, so the same bits as in a
     # projection of every world); the rest cost nothing more.
     worlds = np.flatnonzero(need)
-    metric = _metric(tree, model, state, s.joint_projection_contact_weight, worlds)
+    metric = _metric(tree, model, state, js.settings.joint_projection_contact_weight, worlds)
     sub = State({k: state.arrays[k][worlds] for k in ("position", "orientation", "joint_broken")})
-    _project(js, tree, sub, keep, slop, metric, s.joint_projection_passes)
+    _project(js, tree, sub, keep, [tuple(x[worlds] for x in sl) for sl in slop], metric,
+             js.settings.joint_projection_passes)
     state.position[worlds] = sub.position
     state.orientation[worlds] = sub.orientation
     js.positions_moved()
 
 
+def _slops(js, num_worlds):
+    """[(linear m, angular rad) for the tree rows, each (W, tree joints); the
+    same for the loop rows, each (W, 1)]: ``joint_projection_slop`` for the
+    joints of articulations touching something or driven by a motor this
+    step (``JointSet.components_held_tight``), ``free_joint_projection_slop``
+    for the others. A loop row takes the tighter slop in a world where any
+    articulation is held tight."""
+    s, tree = js.settings, js.tree
+    held = js.components_held_tight
+    if held is None:
+        held = np.zeros((num_worlds, tree.num_components + 1), dtype=bool)
+    tight = held[:, tree.component]
+    lin = np.where(tight, s.joint_projection_slop, s.free_joint_projection_slop)
+    loop = np.where(tight.any(axis=1, keepdims=True), s.joint_projection_slop, s.free_joint_projection_slop)
+    return [(lin, lin / ANGULAR_SLOP_LEVER), (loop, loop / ANGULAR_SLOP_LEVER)]
+
+
 def _project(js, tree, state, keep, slop, metric, passes):
     """At most ``passes`` Gauss-Newton passes on ``state`` (positions,
-    orientations and broken flags of the worlds being projected)."""
+    orientations and broken flags of the worlds being projected); ``slop`` as
+    ``_slops`` gives it, for those worlds."""
+    (tree_slop, loop_slop) = slop
+    stop = TOLERANCE * tree_slop[0].min(axis=1)  # m, per world
     M, M_inv = metric
     M_inv_tree = M_inv[:, tree.t.bodies]  # the leaf bodies' pivots
     loops = js.loop_rows
@@ -98,13 +118,13 @@ def _project(js, tree, state, keep, slop, metric, passes):
         rows = tree.jacobians(js, state, True, 1.0, velocity=False, max_push_out=np.inf, max_angular_push_out=np.inf)
         a, b, Ja, Jb, mask, C = rows
         C *= keep[:, None]
-        _beyond_slop(C, slop)
+        _beyond_slop(C, tree_slop)
         # Merit: the 2-norm of the errors beyond the slop, the angular rows at the slop's lever (m).
         err = _squared_error(C)
         if loops is not None:
             lrows = tree.jacobians(js, state, True, 1.0, velocity=False, max_push_out=np.inf,
                                    max_angular_push_out=np.inf, rows=loops)
-            _beyond_slop(lrows[5], slop)
+            _beyond_slop(lrows[5], loop_slop)
             err = err + _squared_error(lrows[5])
         err = np.sqrt(err)
         if before is not None:
@@ -116,7 +136,7 @@ def _project(js, tree, state, keep, slop, metric, passes):
                 state.position[...] = np.where(w, before[1], state.position)
                 state.orientation[...] = np.where(w, before[2], state.orientation)
                 done |= worse
-        worlds = (err > TOLERANCE * slop[0]) & ~done
+        worlds = (err > stop) & ~done
         if k == passes or not worlds.any():
             return
         mask *= keep[:, None]
@@ -142,19 +162,20 @@ def _project(js, tree, state, keep, slop, metric, passes):
 
 def _worlds_beyond_slop(js, tree, state, keep, slop):
     """(W,) bool: worlds in which an active projected joint's anchor error
-    exceeds the linear bound ``slop[0]`` or its lock rows' angular error the
-    angular one ``slop[1]``. A
+    exceeds its linear slop or its lock rows' angular error its angular one
+    (``slop`` as ``_slops`` gives it). A
     hinge's error a_p × a_c is normal to a_p, so its two lock rows hold all of
     it; a fixed joint's rows are the whole vector; a ball joint has no lock rows."""
     need = np.zeros(state.num_worlds, dtype=bool)
-    for rows, use in ((tree, keep), (js.loop_rows, True)):
+    for rows, use, (lin_slop, ang_slop) in ((tree, keep, slop[0]), (js.loop_rows, True, slop[1])):
         if rows is None:
             continue
         idx = rows.joints
         a, b, fpw, fcw, ra, rb = js.frames(state, idx)
         lin, ang = rows._position_errors(state, a, b, fpw, fcw, ra, rb)
         locked = rows.ang_mask.any(axis=1)
-        beyond = (np.sqrt((lin ** 2).sum(axis=-1)) > slop[0]) | (locked & (np.sqrt((ang ** 2).sum(axis=-1)) > slop[1]))
+        beyond = ((np.sqrt((lin ** 2).sum(axis=-1)) > lin_slop)
+                  | (locked & (np.sqrt((ang ** 2).sum(axis=-1)) > ang_slop)))
         need |= (beyond & use & (js._active(state, idx) > 0)).any(axis=1)
     return need
 
@@ -165,11 +186,12 @@ def _squared_error(C):
 
 
 def _beyond_slop(C, slop):
-    """Shrink each joint's linear (rows 0-2) and angular (rows 3-5) error by
-    its slop, in place: what is left is the error beyond the slop."""
+    """Shrink each joint's linear (rows 0-2) and angular (rows 3-5) error
+    (C: (W, joints, 6)) by its slop ((W, joints) or (W, 1) each), in place:
+    what is left is the error beyond the slop."""
     for rows, allowed in ((slice(0, 3), slop[0]), (slice(3, 6), slop[1])):
         norm = np.sqrt((C[..., rows] ** 2).sum(axis=-1, keepdims=True))
-        C[..., rows] *= np.maximum(0.0, 1.0 - allowed / np.maximum(norm, 1e-300))
+        C[..., rows] *= np.maximum(0.0, 1.0 - allowed[..., None] / np.maximum(norm, 1e-300))
 
 
 def _metric(tree, model, state, weight, worlds):

@@ -142,6 +142,7 @@ class JointSet:
         self.has_limit = has_limit = np.isfinite(self.lower) | np.isfinite(self.upper)
         self.has_swing = has_swing = (self.kind == BALL) & (self.cone < math.pi).any(axis=1)
         self.tree = None
+        self.components_held_tight = None  # (W, articulations + 1) bool, set each step (begin_step)
         self._loop_tree_joints = None
         in_tree = np.zeros(J, dtype=bool)
         lim_in_tree = np.zeros(J, dtype=bool)
@@ -150,7 +151,7 @@ class JointSet:
             in_tree[self.tree.joints] = True
             if not in_tree.any():
                 self.tree = None
-            elif settings.joint_limits_in_tree and math.isinf(settings.limit_hertz):
+            elif settings.limits_in_tree:
                 lim_in_tree = in_tree
                 self.tree.limits = bool((has_limit | has_swing)[self.tree.joints].any())
                 # The tree's possible limit rows: (tree joint, slot) with slot 0 twist, 1 swing.
@@ -467,10 +468,11 @@ class JointSet:
             state.angular_velocity[:, b] = wb
 
     # ----------------------------------------------------------------- solver
-    def begin_step(self, model, state, h, touching=None):
+    def begin_step(self, model, state, h, touching=None, motor=None):
         """World inverse inertias for the step (Box2D prepares once per step)
         and each tree joint's softness; ``touching`` (W, num_bodies) bool marks
-        the bodies with contact rows this step (None: no contacts)."""
+        the bodies with contact rows this step (None: no contacts), ``motor``
+        (W, actuators) the step's motor torques in N·m (None: none)."""
         self._frames_on, self._frames, self._frames_state = True, None, state
         self._drop_position_caches()
         self._set_inertia(model, state)
@@ -496,6 +498,7 @@ class JointSet:
             self._limit_soft = self._tree_soft = self._soft
         elif self.tree is not None:
             loop_hz = s.loop_joint_hertz if math.isinf(s.loop_joint_hertz) else min(s.loop_joint_hertz, cap)
+            self.components_held_tight = self._components_held_tight(state.num_worlds, touching, motor)
             self._choose_tree_softness(make_soft(tree_hz, s.joint_damping_ratio, h),
                                        make_soft(free_hz, s.joint_damping_ratio, h), touching,
                                        make_soft(loop_hz, s.loop_joint_damping_ratio, h))
@@ -505,6 +508,23 @@ class JointSet:
             # Impulses summed over the step's substeps: the load a joint carries.
             self._lin_sum = np.zeros(state.joint_linear_impulse.shape)
             self._ang_sum = np.zeros(state.joint_linear_impulse.shape[:2])
+
+    def _components_held_tight(self, num_worlds, touching, motor):
+        """(W, articulations + 1) bool: the articulations touching something
+        (``touching``, (W, bodies)) or driven by a nonzero motor torque
+        (``motor``, (W, actuators)) this step; the last column False. Their
+        joints are projected at ``joint_projection_slop``, the others' (passive,
+        in the air) at ``free_joint_projection_slop`` (``joint_projection``)."""
+        t = self.tree
+        if touching is None:
+            held = np.zeros((num_worlds, t.num_components + 1), dtype=bool)
+        else:
+            held = self._components_in_contact(touching)
+        if motor is not None and len(self.act_joint):
+            w, a = np.nonzero(motor != 0.0)
+            held[w, t.body_component[self.child[self.act_joint[a]]]] = True
+            held[:, -1] = False
+        return held
 
     def _soft_limit_zone(self, soft, touching):
         """(softness, rows) of the step's Gauss-Seidel limit rows that are soft

@@ -48,44 +48,56 @@ CONTACT_COLORINGS = ("ordered", "greedy")
 #: against 16 cm, a body at 4.25 against 2.15 m/s 3-4 s after it) and the
 #: ragdoll under random maximum torques (6.4 against 5.8 cm).
 ACCURATE = {"substeps": 16, "joint_hertz": math.inf, "joint_limits_in_tree": True, "joint_projection_slop": 0.0002,
-            "free_joint_geometric_stiffness": False, "articulated_contacts": True}
+            "free_joint_projection_slop": 0.0002, "free_joint_geometric_stiffness": False,
+            "articulated_contacts": True, "articulated_contact_sweeps": 1}
 
-#: Settings that keep a ragdoll's joints closed on the ground at the default
-#: substeps (``Settings(**CLOSED_JOINTS)``): rigid tree joints with their limits
-#: in the tree solve, the 0.2 mm post-stabilisation of ``ACCURATE``, and the
-#: contacts of articulations on static bodies solved with the articulation's
-#: response (``articulated_contacts``), so that they do not fight the rigid
-#: joints. For ragdolls that must look right (animation) at a fraction of
-#: ACCURATE's cost; its contacts are solved before its joints (``step``), so
-#: the limits hold exactly at the end of each solve. Measured against the
-#: defaults (README, "Articulated contacts"): benchmarks.accuracy's ragdoll
-#: under random torques keeps its joint anchors within 0.2 mm (defaults
-#: 4.0 cm), its limits give by 0.63 rad (ACCURATE 0.005); every ragdoll
-#: case of ``benchmarks.stability --quick`` holds 0.2 mm, the 100 m/s impact
-#: too (3.2 cm deep), but after it a body still moves at 11 m/s 3-4 s later
-#: (the defaults rest by 2.7 s); dropped ragdolls rest (0.00007 and 0.0005
-#: m/s from 5 s in ``ragdoll_drops`` and ``ragdoll_drops_random``; 0.154 and
-#: 0.080 with the joints solved first, a foot twitching against its ankle
-#: limit) and land 2.0-2.5 cm deep (defaults 3.2-3.5). It takes two
-#: ``articulated_contact_sweeps``: with one its drops landed 4.7-5.2 cm deep
-#: and the impact 18.7 cm; with more, limbs pressed against limits the
-#: response does not know sink further (README). Articulations with loops are solved with
-#: their loops in the tree at ``loop_joint_hertz`` (``joint_loops``): the
-#: 10x10 sphere grid held 1.2 mm over 10 s (defaults 9.1 mm), the chain
-#: pinned at both ends 0.20 mm (1.4 mm); their contacts keep the
-#: body-by-body rows; in a scene whose tree joints have limits
-#: (joint_limits_in_tree) the loop rows stay Gauss-Seidel. The
-#: step costs 1.4-1.5 times the defaults' for one ragdoll on the ground and
-#: 1.9 times at 64 worlds (one sweep: 1.3 and 1.8)
-#: (``benchmarks.throughput --worlds 1 64 --scenes ragdoll_ground``), and
-#: its contact response matrices take 195-225 KB per world (defaults 64-91).
+#: The defaults since 2026-12-04, spelled out (``Settings(**CLOSED_JOINTS)``
+#: is ``Settings()``): rigid tree joints with their limits in the tree solve,
+#: the 0.2 mm post-stabilisation of ``ACCURATE`` for articulations touching
+#: something or driven by a motor, and the contacts of articulations on static
+#: bodies solved with the articulation's response (``articulated_contacts``,
+#: two sweeps), so that they do not fight the rigid joints; its contacts are
+#: solved before its joints (``step``), so the limits hold exactly at the end
+#: of each solve. Measured while it was a preset (free articulations then
+#: projected at 0.2 mm too) against the old defaults (``SOFT_JOINTS``; README,
+#: "Articulated contacts"): benchmarks.accuracy's ragdoll under random torques
+#: keeps its joint anchors within 0.2 mm (4.0 cm), its limits give by 0.63 rad
+#: (ACCURATE 0.005); every ragdoll case of ``benchmarks.stability --quick``
+#: holds 0.2 mm, the 100 m/s impact too (3.2 cm deep; the body then skids
+#: 52 m and rests by 4.5 s); dropped ragdolls land 2.0-2.5 cm deep (3.2-3.5)
+#: and rest. With one ``articulated_contact_sweeps`` its drops landed 4.7-5.2
+#: cm deep and the impact 18.7 cm; with more, limbs pressed against limits the
+#: response does not know sink further (README). The step costs 1.4-1.5 times
+#: ``SOFT_JOINTS``' for one ragdoll on the ground and 1.9 times at 64 worlds
+#: (``benchmarks.throughput --worlds 1 64 --scenes ragdoll_ground``), and its
+#: contact response matrices take 195-225 KB per world (64-91).
 CLOSED_JOINTS = {"joint_hertz": math.inf, "joint_limits_in_tree": True, "joint_projection_slop": 0.0002,
                  "articulated_contacts": True, "articulated_contact_sweeps": 2}
+
+#: The defaults before 2026-12-04 (``Settings(**SOFT_JOINTS)``), kept for
+#: speed: an articulation touching something is soft (60 Hz, damping ratio 2),
+#: its limits are Gauss-Seidel rows after the tree solve, its contacts are
+#: solved body by body and its anchors are projected back only beyond 4 cm.
+#: The step costs 0.55-0.75 of the defaults' on a ragdoll on the ground; the
+#: ragdoll's joint anchors open by 4.0 cm under random torques (defaults
+#: 0.2 mm) and the standing PD on Balance falls more often (README).
+SOFT_JOINTS = {"joint_hertz": 60.0, "joint_limits_in_tree": False, "joint_projection_slop": 0.04,
+               "articulated_contacts": False, "articulated_contact_sweeps": 1}
 
 
 @dataclass(frozen=True)
 class Settings:
     """Step settings.
+
+    The defaults changed on 2026-12-04 to rigid tree joints with their limits
+    in the tree solve, a 0.2 mm post-stabilisation for articulations touching
+    something or driven by a motor, and the contacts of articulations solved
+    with the articulation's response at two sweeps (what ``CLOSED_JOINTS``
+    names): the ragdoll under random torques keeps its joints within 0.2 mm
+    (4.0 cm before) for 1.3-1.9 times the step. The old defaults are
+    ``SOFT_JOINTS``. Figures below said to be "at the defaults" were measured
+    with the defaults of their time; those before that date hold for
+    ``SOFT_JOINTS``.
 
     dt: seconds per step.
     substeps: substeps per step; each integrates, solves and relaxes once.
@@ -174,7 +186,9 @@ class Settings:
         under bang-bang maximum torques keeps its limits within 1.5-2.4° (GS
         rows: 7°); with soft joints the soft equality rows and the rigid limit
         rows of one solve disagree, and at 4 substeps a light foot still
-        swings 16° past its cone within a substep. On in ``ACCURATE``.
+        swings 16° past its cone within a substep. None (the default): on
+        wherever it can act (tree joint solver, soft step, rigid limits);
+        False in ``SOFT_JOINTS``.
     joint_active_set_passes: most passes of that active set per solve (each a
         small solve in the limit rows' space on the tree's one factorisation per
         set of positions; 5 converged every solve of a humanoid in the air under
@@ -185,14 +199,16 @@ class Settings:
         has loops: a contact this step, a limit outside the tree, a
         loop-closing joint (Hz, -; loop rows solved exactly take their
         articulation's softness);
-        capped at half the substep rate (hω <= π); ``joint_hertz = inf`` makes
-        them rigid (full bias C/h). The default 60 Hz, ζ 2 lets a dropped
-        ragdoll come to rest; rigid, its contacts (which see one body's mass)
-        and the exact tree solve fight, and it chatters at 5-9 cm/s 3-6 s after
-        landing; nor do rigid joints share friction load between bodies on
-        the ground (three hinged boxes slide off a 24° incline that holds
-        each box alone, ``tests/engine/test_contacts.py``). Rigid joints want
-        ``articulated_contacts`` (``ACCURATE``, ``CLOSED_JOINTS``).
+        capped at half the substep rate (hω <= π); ``joint_hertz = inf`` (the
+        default) makes them rigid (full bias C/h). Rigid joints need
+        ``articulated_contacts``: with body-by-body contacts (which see one
+        body's mass) they and the exact tree solve fight, a dropped ragdoll
+        chatters at 5-9 cm/s 3-6 s after landing, and the joints share no
+        friction load between bodies on the ground (three hinged boxes slide
+        off a 24° incline that holds each box alone,
+        ``tests/engine/test_contacts.py``). ``SOFT_JOINTS`` (the defaults
+        before 2026-12-04) has 60 Hz, ζ 2: a soft joint carries load by its
+        stretch, 4 cm under random torques.
     loop_joint_hertz, loop_joint_damping_ratio: the same for an articulation
         with loop-closing joints solved with the tree (``joint_loops``
         "exact"), its tree and loop rows alike; capped at half the substep
@@ -242,12 +258,25 @@ class Settings:
         82 mm, median over 16 worlds x 300 steps) but the flailing limbs went deeper into the
         ground (median 78 mm against 65), and the 1/30 s drop's feet sank 4.0
         cm against 2.8. Costs 1-3% per step while no world needs it.
-        A smaller slop does not suit the default soft joints: a soft joint
+        That was the default with soft joints; the default now is 0.2 mm
+        (rigid joints, as ``ACCURATE``), for the joints of articulations
+        touching something or driven by a nonzero motor torque this step
+        (``free_joint_projection_slop`` for the others). A smaller slop does
+        not suit soft joints (``SOFT_JOINTS``): a soft joint
         carries its load by its stretch, and projecting the stretch away
         changed the Balance task (slop 5 mm: the standing PD fell in 12 of 40
         pushed episodes instead of 3) and, at 1-2 cm, left a dropped ragdoll in
-        poses that chatter at 0.1-0.4 m/s. ``ACCURATE`` (rigid joints) uses
-        the 0.2 mm slop.
+        poses that chatter at 0.1-0.4 m/s.
+    free_joint_projection_slop: m, the slop for the joints of articulations
+        nothing touches and no motor drives this step (a passive pendulum or
+        chain in the air). Default 4 cm: the projection moves positions, not
+        velocities, and a velocity left off the moved joints' manifold is
+        taken out by the next rigid solve, so a tight slop drains energy from
+        a fast passive chain: the undamped double pendulum lost 16% of 2 m g L
+        over 20 s at 0.2 mm (2.1% at 4 cm, anchors within 1.3 mm;
+        ``tests/engine/test_joints.py``). The ragdoll under random torques
+        leaves the ground and, at 4 cm here, opened by 4.1 mm in the air; it
+        is driven, so it takes joint_projection_slop (0.2 mm).
     joint_projection_slop: m; only the part of an anchor error beyond it is
         projected (the lock rows' angular error beyond slop / 0.25 m rad).
     joint_projection_contact_weight: in the projection's metric, each contact
@@ -333,8 +362,9 @@ class Settings:
         bodies (a ragdoll on the ground) in contact space with the
         articulation's response through the joint tree
         (``engine.articulated_contacts``; it needs joint_solver "tree" and
-        solver "soft_step", else a ValueError) instead of one body's mass. Off by
-        default. With rigid joints it keeps them closed on the ground:
+        solver "soft_step", else a ValueError) instead of one body's mass.
+        None (the default): on wherever it can act (tree joint solver, soft
+        step); False in ``SOFT_JOINTS``. With rigid joints it keeps them closed on the ground:
         ``ragdoll_drops`` with rigid tree joints, limits in the tree and a
         0.2 mm projection slop opened 6.1 cm and still moved at 0.42 m/s
         after 3 s, with it 0.2 mm and 0.082 m/s (joints solved first, as
@@ -374,8 +404,8 @@ class Settings:
         can be pressed against a limit the joint solve then holds: the dt
         1/30 drop without the humanoid's limits lands 5.2 / 3.5 / 1.4 / 0.46
         cm deep with 1 / 2 / 4 / 8 sweeps, with them 5.2 / 3.5 / 6.7 / 8.1.
-        Two in ``CLOSED_JOINTS``; 1 by default and in ``ACCURATE`` (not
-        measured with two) until the limits are in the response.
+        Two by default (and in ``CLOSED_JOINTS``); 1 in ``ACCURATE`` (not
+        measured with two) and ``SOFT_JOINTS``.
     max_push_out: m/s, the largest speed the position bias may add.
     restitution_threshold: m/s, closing speeds below it do not bounce.
     linear_slop: m, penetration allowed before position correction pushes out.
@@ -395,10 +425,10 @@ class Settings:
     joint_solver: str = "tree"
     joint_geometric_stiffness: bool = False
     joint_geometric_stiffness_cap: float = 1.0
-    joint_limits_in_tree: bool = False
+    joint_limits_in_tree: bool | None = None
     joint_loops: str = "exact"
     joint_active_set_passes: int = 3
-    joint_hertz: float = 60.0
+    joint_hertz: float = math.inf
     joint_damping_ratio: float = 2.0
     loop_joint_hertz: float = 120.0
     loop_joint_damping_ratio: float = 1.0
@@ -408,14 +438,15 @@ class Settings:
     gs_joint_damping_ratio: float = 2.0
     joint_relax: bool = True
     joint_projection_passes: int = 4
-    joint_projection_slop: float = 0.04
+    joint_projection_slop: float = 0.0002
+    free_joint_projection_slop: float = 0.04
     joint_projection_contact_weight: float = 1000.0
     limit_hertz: float = math.inf
     limit_soft_margin: float = 0.05
     contact_coloring: str = "ordered"
     contact_hertz: float = 60.0
-    articulated_contacts: bool = False
-    articulated_contact_sweeps: int = 1
+    articulated_contacts: bool | None = None
+    articulated_contact_sweeps: int = 2
     contact_damping_ratio: float = 10.0
     contact_load_stiffening: float = 1.25
     joint_max_push_out: float = 3.0
@@ -429,7 +460,7 @@ class Settings:
     def validate(self) -> None:
         for f in fields(self):
             v = getattr(self, f.name)
-            if isinstance(v, bool) or isinstance(v, str):
+            if v is None or isinstance(v, bool) or isinstance(v, str):
                 continue
             if not isinstance(v, (int, float)) or math.isnan(v):
                 raise ValueError(f"settings: {f.name} must be a number, got {v!r}")
@@ -443,6 +474,10 @@ class Settings:
             v = getattr(self, name)
             if int(v) != v or v < 0:
                 raise ValueError(f"settings: {name} must be an integer >= 0, got {v!r}")
+        for name in ("joint_limits_in_tree", "articulated_contacts"):
+            if not (getattr(self, name) is None or isinstance(getattr(self, name), bool)):
+                raise ValueError(f"settings: {name} must be True, False or None (on wherever it can act), got "
+                                 f"{getattr(self, name)!r}")
         if self.integrator not in INTEGRATORS:
             raise ValueError(f"settings: unknown integrator {self.integrator!r}; choose one of {INTEGRATORS}")
         if self.solver not in SOLVERS:
@@ -470,7 +505,7 @@ class Settings:
                              f"{self.limit_hertz!r}; for soft limits leave joint_limits_in_tree off")
         for name in ("joint_geometric_stiffness_cap", "joint_damping_ratio", "loop_joint_damping_ratio",
                      "gs_joint_damping_ratio", "contact_damping_ratio", "max_push_out",
-                     "joint_max_push_out", "joint_max_angular_push_out", "joint_projection_slop",
+                     "joint_max_push_out", "joint_max_angular_push_out", "joint_projection_slop", "free_joint_projection_slop",
                      "joint_projection_contact_weight", "limit_soft_margin",
                      "restitution_threshold", "linear_slop", "speculative_distance"):
             v = getattr(self, name)
@@ -479,6 +514,25 @@ class Settings:
         if not (self.contact_load_stiffening >= 1 and math.isfinite(self.contact_load_stiffening)):
             raise ValueError(f"settings: contact_load_stiffening must be a finite number >= 1 (1: off), got "
                              f"{self.contact_load_stiffening!r}")
+
+    @property
+    def tree_solve(self) -> bool:
+        """Whether joints are solved by the soft step's tree solver (what the two flags below act through)."""
+        return self.joint_solver == "tree" and self.solver == "soft_step"
+
+    @property
+    def limits_in_tree(self) -> bool:
+        """``joint_limits_in_tree`` resolved: None (the default) is on wherever it can act (tree solve, rigid limits)."""
+        if self.joint_limits_in_tree is None:
+            return self.tree_solve and math.isinf(self.limit_hertz)
+        return self.joint_limits_in_tree
+
+    @property
+    def contacts_articulated(self) -> bool:
+        """``articulated_contacts`` resolved: None (the default) is on wherever it can act (tree solve)."""
+        if self.articulated_contacts is None:
+            return self.tree_solve
+        return self.articulated_contacts
 
     @property
     def substep_dt(self) -> float:

@@ -72,7 +72,7 @@ def step(model, state, control: Control | None = None):
     # ground against its limit was pushed into it by every contact solve and
     # out of it by the next joint solve: 5 of 8 random drops
     # (ragdoll_drops_random, CLOSED_JOINTS) twitched at 3-8 cm/s to the end.
-    order = (contacts, joints) if s.articulated_contacts else (joints, contacts)
+    order = (contacts, joints) if s.contacts_articulated else (joints, contacts)
     constraints = [c for c in order if c is not None]
     passive = model.joints is not None and model.joints.has_passive
     # The contacts' begin_step first: the joints choose their softness from the bodies in contact.
@@ -81,8 +81,8 @@ def step(model, state, control: Control | None = None):
         contacts.begin_step(model, state, h)
         touching = contacts.bodies_in_contact(state)
     if joints is not None:
-        joints.begin_step(model, state, h, touching)
-        if s.articulated_contacts and contacts is not None and contacts.rows is not None:
+        joints.begin_step(model, state, h, touching, None if control is None else control.motor)
+        if s.contacts_articulated and contacts is not None and contacts.rows is not None:
             contacts.rows.attach(ArticulatedContacts(model, state, contacts.rows, joints))
     for _ in range(s.substeps):
         if passive:

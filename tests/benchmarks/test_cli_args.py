@@ -46,7 +46,7 @@ def test_stability_unknown_setting_is_a_usage_error_listing_the_settings(capsys,
 @pytest.mark.parametrize("text, words", [
     ('{"substeps": 0}', ["substeps", ">= 1"]),
     ('{"substeps": 2.5}', ["substeps", "integer"]),
-    ('{"joint_limits_in_tree": 1}', ["joint_limits_in_tree", "true or false"]),
+    ('{"joint_limits_in_tree": 1}', ["joint_limits_in_tree", "true, false or null"]),
     ('{"integrator": "rk5"}', ["integrator", "rk5"]),
     ('{"joint_hertz": -1}', ["joint_hertz", "> 0"]),
     ('[8]', ["JSON object"]),

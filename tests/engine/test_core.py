@@ -623,15 +623,18 @@ def test_inverse_or_nan_marks_only_the_singular_matrices():
 
 
 def test_a_diverging_ragdoll_is_reported_not_a_linalg_error():
-    """The humanoid under random torques at dt 1/30 with 1 substep and no
-    relax solve diverges (bodies 1e17 m apart by step 40); a joint pivot then
+    """The humanoid with soft joints (``engine.SOFT_JOINTS``) under random
+    torques at dt 1/30 with 1 substep and no relax solve diverges (bodies
+    1e17 m apart by step 40; the defaults' rigid joints stay finite); a joint pivot then
     turns singular in floating point. The step reports that world as
     non-finite (SimulationError naming world and step), as for any other
     divergence, instead of stopping with numpy's LinAlgError; without the
     check the other world of the batch steps on unharmed."""
     from benchmarks import accuracy
 
-    model = accuracy._ragdoll_model(Settings(dt=1 / 30, substeps=1, relax_iterations=0))
+    from engine import SOFT_JOINTS
+
+    model = accuracy._ragdoll_model(Settings(dt=1 / 30, substeps=1, relax_iterations=0, **SOFT_JOINTS))
     torques = accuracy._ragdoll_torques(model, 3.0)
     per = round(accuracy.SAMPLE_DT * 30)
     s = model.initial_state(2)
