@@ -98,12 +98,16 @@ class ArticulatedContacts:
         # A = J_c Z (W, C, C), stored by columns, each contiguous: A_columns[w, i]
         # = A[w, :, i], the column velocities' change per unit impulse on column
         # i (the sweeps read one column per update; A is symmetric only to
-        # rounding). J_c as a (C, N x 6) matrix per world, zero but on each
-        # column's body, so that Aᵀ = Zᵀ J_cᵀ is one batched matrix product
-        # (a gather of each column's body rows of Z took 28 MB at W = 64).
-        J_c = np.zeros((W, C, N, 6))
-        J_c[self.world, np.arange(C), self.body] = self.J
-        self.A_columns = np.matmul(self.Z.transpose(0, 2, 1), J_c.reshape(W, C, N * 6).transpose(0, 2, 1))
+        # rounding). Row r of J_c is J[r] on its body's six rows of Z, so
+        # A[r, i] = Σ_d J[r, d] Z[6 body_r + d, i], summed over d in order,
+        # element by element: a matrix product over the padded columns rounded
+        # differently with the batch's column count, and a world stepped alone
+        # left the batch's trajectory after 82 steps.
+        Z4 = U.reshape(W, N, 6, C)
+        At = np.zeros((W, C, C))
+        for d in range(6):
+            At += self.J[:, :, d, None] * Z4[:, :, d, :][self.world, self.body]
+        self.A_columns = np.ascontiguousarray(At.transpose(0, 2, 1))
         diag = np.einsum("wcc->wc", self.A_columns)
         self.m = np.where(diag > 0, 1.0 / np.where(diag > 0, diag, 1.0), 0.0)  # effective masses
         self.valid = np.zeros((W, C), dtype=bool)
@@ -111,6 +115,7 @@ class ArticulatedContacts:
         self.mu = np.zeros((W, C))
         self.mu[self.wi, self.col[..., 0]] = cr.mu[rows]
         self.normals = np.flatnonzero(self.valid[:, ::3].any(axis=0)) * 3  # normal columns valid in some world
+        self.used = (self.normals[:, None] + np.arange(3)).ravel()  # their normal and friction columns
         self.sweeps = model.settings.articulated_contact_sweeps
 
     # ------------------------------------------------------------------ impulses
@@ -145,11 +150,20 @@ class ArticulatedContacts:
         v = np.concatenate((state.velocity, state.angular_velocity), axis=-1)[:, self.tree_bodies, :, None]
         p = np.zeros((self.W, self.N, 6))
         p[:, self.tree_bodies] = np.matmul(self.M, v)[..., 0]
-        return np.matmul(p.reshape(self.W, 1, self.N * 6), self.Z)[:, 0]
+        # Summed over the body rows in order for each column (einsum's loop), so
+        # a world's columns do not depend on how many the batch pads to.
+        return np.einsum("wk,wkc->wc", p.reshape(self.W, self.N * 6), self.Z)
 
     def _apply(self, state, lam):
-        """Velocities += Z λ (every body of each articulation)."""
-        dv = np.matmul(self.Z, lam[..., None]).reshape(self.W, self.N, 6)
+        """Velocities += Z λ (every body of each articulation), summed column
+        by column over the columns valid in some world: a matrix product over
+        all of them would sum each world's columns in an order that depends on
+        how many the batch pads them to, and a world stepped alone would
+        differ from the same world in a batch in the last bits."""
+        dv = np.zeros((self.W, self.N * 6))
+        for i in self.used:
+            dv += self.Z[:, :, i] * lam[:, i, None]
+        dv = dv.reshape(self.W, self.N, 6)
         state.velocity += dv[..., :3]
         state.angular_velocity += dv[..., 3:]
 

@@ -521,7 +521,7 @@ class JointSet:
         else:
             held = self._components_in_contact(touching)
         if motor is not None and len(self.act_joint):
-            w, a = np.nonzero(motor != 0.0)
+            w, a = np.nonzero(np.asarray(motor, dtype=float) != 0.0)
             held[w, t.body_component[self.child[self.act_joint[a]]]] = True
             held[:, -1] = False
         return held

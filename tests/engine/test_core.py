@@ -20,17 +20,22 @@ from engine import (
     Control,
     Event,
     SceneBuilder,
+    Settings,
     SimulationError,
     Sphere,
     State,
     simulate,
     step,
 )
-from engine import Settings
 from engine import diagnostics as D
-from engine.math3d import inverse_or_nan
 from engine.effects.gravity import Gravity
-from engine.math3d import quat_from_axis_angle, quat_normalize, quat_rotate_inv, quat_to_matrix
+from engine.math3d import (
+    inverse_or_nan,
+    quat_from_axis_angle,
+    quat_normalize,
+    quat_rotate_inv,
+    quat_to_matrix,
+)
 
 G0 = 9.80665  # m/s², standard gravity
 
@@ -631,7 +636,6 @@ def test_a_diverging_ragdoll_is_reported_not_a_linalg_error():
     divergence, instead of stopping with numpy's LinAlgError; without the
     check the other world of the batch steps on unharmed."""
     from benchmarks import accuracy
-
     from engine import SOFT_JOINTS
 
     model = accuracy._ragdoll_model(Settings(dt=1 / 30, substeps=1, relax_iterations=0, **SOFT_JOINTS))
