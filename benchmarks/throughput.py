@@ -342,7 +342,7 @@ def parse_args(argv):
     p.add_argument("--compare-mujoco", action="store_true", help="measure MuJoCo's humanoid and Humanoid-v5 too")
     p.add_argument("--mujoco-worlds", type=positive_int, help=f"worlds of the MuJoCo rollouts (default {MUJOCO_WORLDS})")
     p.add_argument("--settings", type=settings_json, default={}, metavar="JSON",
-                   help="engine settings over each ragdoll scene's own, e.g. '{\"articulated_contacts\": true}'")
+                   help="engine settings over each ragdoll scene's own, e.g. '{\"articulated_contacts\": false}'")
     p.add_argument("--processes", type=positive_int, nargs="+", default=[],
                    help="also step each W >= P in P worker processes (engine.ParallelStepper): "
                         "rows of mode batched-Pproc")

@@ -4,8 +4,8 @@ response (``Settings.articulated_contacts``).
 The contact solver (``contact_solver``) gives each row the effective mass of
 the one body it touches: a 1 kg foot stops, and the joint solve after it hands
 the impulse to the 70 kg body above, so against rigid joints a resting
-ragdoll chatters and its joints open (the default soft tree joints let the two
-agree, at the price of anchor error). Here the rows between a static body
+ragdoll chatters and its joints open (soft tree joints, ``SOFT_JOINTS``, let
+the two agree, at the price of anchor error). Here the rows between a static body
 (the ground) and bodies held by tree joints are solved in contact space, with
 the joints in the metric:
 
@@ -20,7 +20,8 @@ the joints in the metric:
   seen at a contact point).
 * The Delassus matrix A = J_c Z (columns x columns per world) couples every
   point of every row on the articulation: projected Gauss-Seidel on it
-  (one sweep per solve, the normal columns then the friction pairs, the same
+  (``articulated_contact_sweeps`` per solve, two by default, the normal
+  columns then the friction pairs, the same
   soft normal rows and Coulomb disc as ``contact_solver``), then the
   velocities change by Z Δλ at once: the joints stay satisfied at velocity
   level, with no joint error for the joint solve to hand back.

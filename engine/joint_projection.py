@@ -5,7 +5,7 @@ for rigid body simulation with contact and constraints").
 The velocity-level solve keeps the anchors of a joint together only to first
 order: a link turning at ω drifts by about |ω|² h² |r| / 2 per substep, and the
 soft joints of an articulation in contact stretch under load. Under random
-maximum torques the humanoid's anchors opened by 13 cm at the defaults (9 mm
+maximum torques the humanoid's anchors opened by 13 cm with soft joints (9 mm
 at ``ACCURATE``) and at a 100 m/s impact by 0.5 m. Each projection pass is
 one Gauss-Newton step of C(q + Δq) = 0 over the tree, solved exactly with the
 tree solver's factorisation:
@@ -25,13 +25,20 @@ world's error larger is taken back and ends that world's projection. A world
 stops once its error beyond the slop is within ``TOLERANCE`` of the slop: the
 passes converge linearly, about 50-70 times per pass under random maximum
 torques (8.1e-2, 4.6e-3, 6.6e-5, 8.6e-7 m beyond the 4 cm slop), so
-at the default slop two passes usually leave under 0.4 mm, where the four
+at a 4 cm slop two passes usually leave under 0.4 mm, where the four
 that always ran before went on to 1e-8 m at nearly twice the projection's
 time (five Jacobians and four factorisations against three and two).
 
-Only errors beyond ``joint_projection_slop`` are projected, back to the slop:
-a soft joint carries its static load by its stretch, and taking that stretch
-away every step made a resting ragdoll's foot chatter at 0.1-0.25 m/s.
+Only errors beyond the slop are projected, back to the slop: a soft joint
+carries its static load by its stretch, and taking that stretch away every
+step made a resting ragdoll's foot chatter at 0.1-0.25 m/s (soft joints,
+``SOFT_JOINTS``: 4 cm). The defaults' rigid joints are held at
+``joint_projection_slop`` (0.2 mm) where their articulation touches
+something or a motor drives it, and at ``free_joint_projection_slop`` (4 cm)
+where it is passive in the air: the projection moves positions, not
+velocities, and the next rigid solve takes out the velocity left off the
+moved joints, which drained 16% of a swinging double pendulum's energy in
+20 s at 0.2 mm. A world's passes stop at 1% of its smallest slop.
 Loop-closing joints solved with the tree (``joint_loops`` "exact") are
 projected with it, by the same Schur complement; articulations whose loop
 rows are Gauss-Seidel are left to the velocity solve: the tree's projection
@@ -108,7 +115,7 @@ def _project(js, tree, state, keep, slop, metric, passes):
     orientations and broken flags of the worlds being projected); ``slop`` as
     ``_slops`` gives it, for those worlds."""
     (tree_slop, loop_slop) = slop
-    stop = TOLERANCE * tree_slop[0].min(axis=1)  # m, per world
+    stop = TOLERANCE * np.where(keep, tree_slop[0], np.inf).min(axis=1)  # m, per world (projected joints)
     M, M_inv = metric
     M_inv_tree = M_inv[:, tree.t.bodies]  # the leaf bodies' pivots
     loops = js.loop_rows

@@ -21,9 +21,11 @@ Loop-closing joints are solved with the tree, exactly, through the Schur
 complement of their rows (``engine.joint_tree``; ``joint_loops``).
 
 Softness: the tree solve (:mod:`engine.joint_tree`) is exact, but Gauss-Seidel rows
-solved after it (contacts, limits outside the tree) see one body's mass and
-fight rigid joints, so the tree joints of an articulation that such rows act
-on are soft (``joint_hertz``), as are those of an articulation with loops
+solved after it (body-by-body contacts, limits outside the tree) see one body's
+mass and fight rigid joints, so the tree joints of an articulation that such
+rows act on take ``joint_hertz`` (rigid by default since 2026-12-04, when the
+articulation's contacts are solved with its response, ``articulated_contacts``,
+and its limits in the tree; 60 Hz in ``SOFT_JOINTS``), as do those of an articulation with loops
 (rigid, they held their joints less well; ``loop_joint_hertz`` when its loops
 are solved with the tree); those of an articulation
 nothing else acts on, a pendulum or a chain in the air, are rigid with

@@ -32,7 +32,7 @@ CONTACT_COLORINGS = ("ordered", "greedy")
 #: before: 1.5-2.4°: a light foot crosses its swing cone within a substep).
 #: At 12 substeps it cost 2.7 times the default on the ragdoll.
 #: With the joint post-stabilisation at a 0.2 mm slop (``joint_projection_*``,
-#: below; the defaults project only beyond 4 cm) the humanoid under random
+#: below; ``SOFT_JOINTS`` projects only beyond 4 cm) the humanoid under random
 #: maximum torques on the ground keeps every anchor within 0.20 mm (without:
 #: 9.1 mm with body-by-body contacts, 8 worlds x 200 steps; 0.53 mm with the
 #: articulated contacts below, 2 worlds x 40) for 5% more time per step.
@@ -128,14 +128,18 @@ class Settings:
         solved exactly per sweep by a linear-time block factorisation in tree
         order, Baraff 1996; joints closing loops: ``joint_loops``) or
         "gauss_seidel" (one 3x3/2x2 block per joint per sweep, colour order).
-        Limits are Gauss-Seidel rows either way. Only the soft step uses it.
+        Limits are Gauss-Seidel rows after the tree solve, or rows of it
+        (``joint_limits_in_tree``, the default with "tree"). Only the soft
+        step uses it.
     joint_loops: with the tree solver, "exact" (default): the rows of joints
         that close a loop (a grid, a four-bar, a chain pinned at both ends)
         are solved together with the tree rows, exactly, through the dense
         Schur complement of the loop rows (Baraff 1996); "gauss_seidel": they
-        are Gauss-Seidel rows after the tree solve, as before. Either way an
-        articulation with loops is soft (``joint_hertz``; ``loop_joint_hertz``
-        when its loops are solved exactly): rigid, with its
+        are Gauss-Seidel rows after the tree solve, as before (and in a scene
+        whose tree joints have limits in the tree, such as the defaults'
+        humanoid scenes). Either way an articulation with loops is soft
+        (``joint_hertz``, which is inf by default, so only when set;
+        ``loop_joint_hertz`` when its loops are solved exactly): rigid, with its
         loops solved exactly, it held its joints less well (``benchmarks.
         stability`` chain_loop, a 20 kg ball on a slack chain pinned at both
         ends: 3.0 mm against 1.1 mm over 10 s; the grid below 29 mm against
@@ -180,7 +184,7 @@ class Settings:
     joint_limits_in_tree: with the tree solver and rigid limits (limit_hertz
         inf; otherwise a ValueError), solve the twist and swing limit
         rows inside the tree solve (one more row in each joint's free angular
-        slots) with an active set, instead of Gauss-Seidel rows after it. Off by default: single limited joints
+        slots) with an active set, instead of Gauss-Seidel rows after it. Measured when it was off by default: single limited joints
         improve (ball into its limits at 50 N·m: 1.1° vs 2.2° over the limit;
         rigid joints 0.14°), and with rigid joints at 8 substeps the humanoid
         under bang-bang maximum torques keeps its limits within 1.5-2.4° (GS
@@ -212,7 +216,7 @@ class Settings:
     loop_joint_hertz, loop_joint_damping_ratio: the same for an articulation
         with loop-closing joints solved with the tree (``joint_loops``
         "exact"), its tree and loop rows alike; capped at half the substep
-        rate like joint_hertz. At joint_hertz's 60 Hz and damping ratio 2 the
+        rate like joint_hertz. At 60 Hz and damping ratio 2 (SOFT_JOINTS' joint_hertz) the
         10x10 sphere grid's free edge, whipping through at 12 m/s 1.9 s after
         release, stretched the joints by 2.23 cm; at 120 Hz and 1.0 (the
         defaults; the cap at 4 substeps of 1/60 s) 0.91 cm (10 km out 0.69
@@ -245,8 +249,9 @@ class Settings:
         off. A world's passes stop once its error beyond the slop is within
         1% of the slop (``joint_projection.TOLERANCE``; two passes in most
         projected steps under random maximum torques, where all four ran
-        before to 1e-8 m, for about 8% of that step). Default 4 passes with
-        a 4 cm slop, a safety net for extremes:
+        before to 1e-8 m, for about 8% of that step). Default 4 passes. With
+        a 4 cm slop (``SOFT_JOINTS``, the default slop before 2026-12-04) it
+        was a safety net for extremes:
         the ragdoll hitting the ground at 100 m/s keeps its joints within
         4.3 cm (0.51 m without; penetration after impact 3.1 cm against
         0.9 cm), ragdolls dropped from 0.5-1.5 m open by 3.8-4.0 cm instead
@@ -374,13 +379,13 @@ class Settings:
         (``ArticulatedContacts._velocities``) they rest at 0.0088 m/s from
         5 s, and every ragdoll hard case holds 0.2 mm (quick runs; 2-9 cm
         without).
-        At the defaults (soft joints) it helps little: the drops rest
+        With soft joints (``SOFT_JOINTS``) it helps little: the drops rest
         (``ragdoll_drops`` and ``ragdoll_drops_random`` 0.0089 and 0.0067 m/s
         from 5 s against 0.0002 and 0.005; 0.084 and 0.10 before the columns
         read the joint solve's velocities) and open by 2.9-3.6 cm (4.0
         without); with the joints solved first the random drops gained
         303 J. Cost (``benchmarks.throughput``, ragdoll on the ground under
-        random maximum torques): with the default joints about the same at
+        random maximum torques): with soft joints about the same at
         W = 1 and 1.1x at W = 64, with rigid joints 2.1x and 1.7x the rigid
         joints' without it (``CLOSED_JOINTS``, measured before its limits' active
         set went to one factorisation a set of positions: 1.4-1.7x and 2.1-2.5x the

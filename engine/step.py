@@ -13,7 +13,9 @@
                    (and further relax passes over the contacts of unjointed bodies)
       restitution  once, from the closing velocities before the solve
       end of step  joint post-stabilisation (positions back onto the joints
-                   beyond a slop), breaking springs and joints, events,
+                   beyond a slop: 0.2 mm for articulations touching something
+                   or driven by a motor, 4 cm for the others by default),
+                   breaking springs and joints, events,
                    non-finite check
 
 The state is advanced in place and returned. Nothing here loops over worlds,
@@ -62,8 +64,9 @@ def step(model, state, control: Control | None = None):
     h = s.dt / s.substeps
     events = []
     joints, contacts = (c if c is not None and c.has_constraints else None for c in (model.joints, model.contacts))
-    # Joints, then contacts: the contacts have the last word and nothing sinks.
-    # With articulated contacts the contact impulses already keep the joint
+    # Without articulated contacts (SOFT_JOINTS): joints, then contacts, so the
+    # contacts have the last word and nothing sinks.
+    # With articulated contacts (the default) the contact impulses already keep the joint
     # rows (not the limits: they are not in the response), so the joints go
     # last and their limits hold exactly; the soft contacts take the small
     # velocity error up in the next sweep. The order is the scene's: rows that

@@ -49,8 +49,9 @@ PD on the light bones (a 1 kg foot, an 8 kg pelvis), which oscillates once
 kd·Δt/I or kp·Δt²/I is too large: at 30 Hz the standing PD could not be
 stiff enough, and under the default pushes it fell in 11 of 20 episodes
 (and in 9 at 60 Hz with the same gains); tuned for 60 Hz it fell in 6 of 120
-in push trials (9 of 120 with the current engine: 2, 4 and 3 of 40) and in 12
-of 100 in a 100-episode ``training.evaluate``.
+in push trials (9 of 120 with the engine of 2026-12-03: 2, 4 and 3 of 40) and
+in 12 of 100 in a 100-episode ``training.evaluate``; at the engine's rigid-joint
+defaults since 2026-12-04, in 15 of 320 (eight seed sets of 40).
 Reset: every joint angle component + uniform ±reset_noise_scale (0.02 rad,
 clipped to the limits), soles lowered onto the ground, whole-body horizontal
 velocity uniform ±reset_noise_scale m/s.

@@ -86,7 +86,7 @@ def test_pendulum_keeps_its_energy_within_1_percent_over_60_s_at_default_setting
 
 
 def test_double_pendulum_energy_within_3_percent_over_20_s_at_default_settings():
-    # Measured: worst deviation 1.9% of 2 m g L (soft joints, the old default: 28%).
+    # Measured: worst deviation 2.1% of 2 m g L (soft joints, the old default: 28%).
     model = double_pendulum()
     state = model.initial_state(1)
     e0 = total_energy(model, state)[0]
@@ -101,7 +101,7 @@ def test_double_pendulum_energy_within_3_percent_over_20_s_at_default_settings()
 def test_double_pendulum_energy_within_1_percent_over_20_s_at_accurate_settings():
     # Energy relative to the swing's scale 2 m g L (the drop of both links).
     # Semi-implicit Euler's energy error is O(h), so this uses engine.ACCURATE
-    # (16 substeps, rigid tree joints); the defaults deviate by 1.9%.
+    # (16 substeps, rigid tree joints); the defaults deviate by 2.1%.
     model = double_pendulum(**e.ACCURATE)
     state = model.initial_state(1)
     e0 = total_energy(model, state)[0]
@@ -504,8 +504,9 @@ def test_loop_closing_joint_is_solved_with_the_tree():
     exact = four_bar()
     assert exact.joints.loop_rows is not None and exact.joints.loop_rows.joints.size == 1
     # The four-bar swings 4 s: the exact solve holds every anchor within 1 mm and
-    # gains no energy; the Gauss-Seidel loop row lets it open by more (both
-    # soft: an articulation with loops takes joint_hertz).
+    # gains no energy; the Gauss-Seidel loop row lets it open by more (the
+    # exact one soft at loop_joint_hertz, the other rigid at the default
+    # joint_hertz).
     worst, rise, _ = swing(exact, 240)
     assert worst < 1e-3 and rise < 1e-3 * 4 * 9.81 * 0.4
     worst_gs, _, _ = swing(four_bar(joint_loops="gauss_seidel"), 240)

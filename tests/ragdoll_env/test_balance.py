@@ -276,7 +276,7 @@ def test_standing_pd_keeps_its_feet_still_with_closed_joints():
     """contacts: at ``engine.CLOSED_JOINTS`` (rigid joints, contacts solved in
     contact space before the joints) the standing PD settles 20 reset worlds
     without pushes and no foot turns faster than 20 rad/s in the first second
-    (measured 4.1 rad/s, one articulated-contact sweep 4.7; the defaults 8.2). With the contact columns read
+    (measured 4.1 rad/s, one articulated-contact sweep 4.7; SOFT_JOINTS, the defaults before 2026-12-04, 8.2). With the contact columns read
     before the joint solve had taken back what the ankle motors turned the
     feet within a substep, a foot spun at 125 rad/s in one world."""
     import engine
