@@ -52,7 +52,9 @@ ACCURATE = {"substeps": 16, "joint_hertz": math.inf, "joint_limits_in_tree": Tru
             "articulated_contacts": True, "articulated_contact_sweeps": 1}
 
 #: The defaults since 2026-12-04, spelled out (``Settings(**CLOSED_JOINTS)``
-#: is ``Settings()``): rigid tree joints with their limits in the tree solve,
+#: steps as ``Settings()`` does; it sets True where the defaults' None means
+#: "on wherever it can act", so with the Gauss-Seidel joint solver or the
+#: thesis solver it is an error): rigid tree joints with their limits in the tree solve,
 #: the 0.2 mm post-stabilisation of ``ACCURATE`` for articulations touching
 #: something or driven by a motor, and the contacts of articulations on static
 #: bodies solved with the articulation's response (``articulated_contacts``,
