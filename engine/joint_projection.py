@@ -76,7 +76,7 @@ def project_joints(js, model, state):
     keep = ~tree.loop_touched[tree.component]
     if not keep.any():
         return
-    slop = _slops(js, state.num_worlds)
+    slop = _slops(js)
     need = _worlds_beyond_slop(js, tree, state, keep, [tuple(x * (1.0 + TOLERANCE) for x in sl) for sl in slop])
     if not need.any():
         return  # the usual step: no Jacobians built
@@ -93,7 +93,7 @@ def project_joints(js, model, state):
     js.positions_moved()
 
 
-def _slops(js, num_worlds):
+def _slops(js):
     """[(linear m, angular rad) for the tree rows, each (W, tree joints); the
     same for the loop rows, each (W, 1)]: ``joint_projection_slop`` for the
     joints of articulations touching something or driven by a motor this
@@ -101,10 +101,7 @@ def _slops(js, num_worlds):
     for the others. A loop row takes the tighter slop in a world where any
     articulation is held tight."""
     s, tree = js.settings, js.tree
-    held = js.components_held_tight
-    if held is None:
-        held = np.zeros((num_worlds, tree.num_components + 1), dtype=bool)
-    tight = held[:, tree.component]
+    tight = js.components_held_tight[:, tree.component]
     lin = np.where(tight, s.joint_projection_slop, s.free_joint_projection_slop)
     loop = np.where(tight.any(axis=1, keepdims=True), s.joint_projection_slop, s.free_joint_projection_slop)
     return [(lin, lin / ANGULAR_SLOP_LEVER), (loop, loop / ANGULAR_SLOP_LEVER)]

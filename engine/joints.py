@@ -148,7 +148,7 @@ class JointSet:
         self._loop_tree_joints = None
         in_tree = np.zeros(J, dtype=bool)
         lim_in_tree = np.zeros(J, dtype=bool)
-        if settings.joint_solver == "tree" and settings.solver == "soft_step" and J:
+        if settings.tree_solve and J:
             self.tree = _TreeSolver(self, model, settings)
             in_tree[self.tree.joints] = True
             if not in_tree.any():
@@ -479,6 +479,8 @@ class JointSet:
         self._drop_position_caches()
         self._set_inertia(model, state)
         s = self.settings
+        # (W, articulations + 1): the articulations with a contact this step, for the three uses below.
+        in_contact = None if touching is None or self.tree is None else self._components_in_contact(touching)
         # Tree joints are stiffer than Gauss-Seidel rows: the tree solve is
         # exact, while loop-closing rows fight it and gained energy when stiff
         # (benchmarks.stability sphere_grid at 240 Hz: +127 J). Both are capped
@@ -490,9 +492,9 @@ class JointSet:
         self._soft = make_soft(gs_hz, s.gs_joint_damping_ratio, h)
         self._limit_soft = make_soft(s.limit_hertz, s.gs_joint_damping_ratio, h)
         self._limit_zone = None
-        if (s.limit_soft_margin > 0 and s.relax_iterations > 0 and s.solver != "thesis" and touching is not None
+        if (s.limit_soft_margin > 0 and s.relax_iterations > 0 and s.solver != "thesis" and in_contact is not None
                 and self.gs_limit.size):
-            self._limit_zone = self._soft_limit_zone(make_soft(tree_hz, s.joint_damping_ratio, h), touching)
+            self._limit_zone = self._soft_limit_zone(make_soft(tree_hz, s.joint_damping_ratio, h), in_contact)
         self._substeps_done = 0
         self._load_before = None
         if s.solver == "thesis":
@@ -500,9 +502,9 @@ class JointSet:
             self._limit_soft = self._tree_soft = self._soft
         elif self.tree is not None:
             loop_hz = s.loop_joint_hertz if math.isinf(s.loop_joint_hertz) else min(s.loop_joint_hertz, cap)
-            self.components_held_tight = self._components_held_tight(state.num_worlds, touching, motor)
+            self.components_held_tight = self._components_held_tight(state.num_worlds, in_contact, motor)
             self._choose_tree_softness(make_soft(tree_hz, s.joint_damping_ratio, h),
-                                       make_soft(free_hz, s.joint_damping_ratio, h), touching,
+                                       make_soft(free_hz, s.joint_damping_ratio, h), in_contact,
                                        make_soft(loop_hz, s.loop_joint_damping_ratio, h))
             self.tree.begin_step(self, model, state, h)
         self._h = h
@@ -511,33 +513,33 @@ class JointSet:
             self._lin_sum = np.zeros(state.joint_linear_impulse.shape)
             self._ang_sum = np.zeros(state.joint_linear_impulse.shape[:2])
 
-    def _components_held_tight(self, num_worlds, touching, motor):
+    def _components_held_tight(self, num_worlds, in_contact, motor):
         """(W, articulations + 1) bool: the articulations touching something
-        (``touching``, (W, bodies)) or driven by a nonzero motor torque
+        (``in_contact``, ``_components_in_contact``) or driven by a nonzero motor torque
         (``motor``, (W, actuators)) this step; the last column False. Their
         joints are projected at ``joint_projection_slop``, the others' (passive,
         in the air) at ``free_joint_projection_slop`` (``joint_projection``)."""
         t = self.tree
-        if touching is None:
+        if in_contact is None:
             held = np.zeros((num_worlds, t.num_components + 1), dtype=bool)
         else:
-            held = self._components_in_contact(touching)
+            held = in_contact.copy()
         if motor is not None and len(self.act_joint):
             w, a = np.nonzero(np.asarray(motor, dtype=float) != 0.0)
             held[w, t.body_component[self.child[self.act_joint[a]]]] = True
             held[:, -1] = False
         return held
 
-    def _soft_limit_zone(self, soft, touching):
+    def _soft_limit_zone(self, soft, in_contact):
         """(softness, rows) of the step's Gauss-Seidel limit rows that are soft
         while violated by less than ``limit_soft_margin``: the rows of
-        articulations with a contact this step (``touching``, (W, bodies)),
+        articulations with a contact this step (``in_contact``, ``_components_in_contact``),
         whose tree joints are soft (``joint_hertz``), take that softness; None
         if no row does. See ``Settings.limit_soft_margin``."""
         comp = self._gs_limit_component
         if not (comp >= 0).any():  # no limit row in a tree (all -1 without one)
             return None
-        rows = self._components_in_contact(touching)[:, comp]  # comp -1 reads the last column, False
+        rows = in_contact[:, comp]  # comp -1 reads the last column, False
         return (soft, rows) if rows.any() else None
 
     def _components_in_contact(self, touching):
@@ -550,7 +552,7 @@ class JointSet:
         hit[:, -1] = False
         return hit
 
-    def _choose_tree_softness(self, soft, rigid, touching, loop):
+    def _choose_tree_softness(self, soft, rigid, in_contact, loop):
         """Each tree joint's softness for the step: an articulation that a
         Gauss-Seidel row acts on (a contact this step, a loop-closing joint,
         a limit outside the tree) takes ``joint_hertz`` (``soft``), the others
@@ -570,8 +572,8 @@ class JointSet:
         t = self.tree
         s = self.settings
         hit = t.gs_touched[None]  # (W or 1, articulations + 1)
-        if touching is not None:
-            hit = hit | self._components_in_contact(touching)
+        if in_contact is not None:
+            hit = hit | in_contact
         on = hit[:, t.component]  # (W or 1, tree joints): soft
         if self.loop_rows is not None:
             # Exact loop rows take the softness of their articulation's tree

@@ -482,10 +482,6 @@ class Settings:
             v = getattr(self, name)
             if int(v) != v or v < 0:
                 raise ValueError(f"settings: {name} must be an integer >= 0, got {v!r}")
-        for name in ("joint_limits_in_tree", "articulated_contacts"):
-            if not (getattr(self, name) is None or isinstance(getattr(self, name), bool)):
-                raise ValueError(f"settings: {name} must be True, False or None (on wherever it can act), got "
-                                 f"{getattr(self, name)!r}")
         if self.integrator not in INTEGRATORS:
             raise ValueError(f"settings: unknown integrator {self.integrator!r}; choose one of {INTEGRATORS}")
         if self.solver not in SOLVERS:
@@ -501,9 +497,11 @@ class Settings:
                      "limit_hertz"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"settings: {name} must be > 0 (inf for rigid), got {getattr(self, name)!r}")
-        tree = self.joint_solver == "tree" and self.solver == "soft_step"
         for name in ("joint_limits_in_tree", "articulated_contacts"):
-            if getattr(self, name) and not tree:
+            if not (getattr(self, name) is None or isinstance(getattr(self, name), bool)):
+                raise ValueError(f"settings: {name} must be True, False or None (on wherever it can act), got "
+                                 f"{getattr(self, name)!r}")
+            if getattr(self, name) and not self.tree_solve:
                 # Both act through the joint tree, which only the soft-step solver's tree joint solver builds.
                 raise ValueError(f"settings: {name} needs joint_solver 'tree' and solver 'soft_step', got "
                                  f"joint_solver {self.joint_solver!r} and solver {self.solver!r}")
