@@ -6,7 +6,11 @@
 
 For each scene and world count W: world-steps per second, simulated seconds
 per wall-clock second (world-steps/s x dt) and bytes per world (the state plus
-the tracemalloc peak of one step, both divided by W). Without ``--steps`` the
+the tracemalloc peak of one step, both divided by W). Both are measured from
+a settled start: ``SETTLE_WORLDS`` worlds stepped ``--settle-seconds`` under
+the random torques (on the ground, the ragdolls have fallen and lie on many
+contact points), repeated over the W worlds; from the standing start a step
+has a few foot contacts and costs less. Without ``--steps`` the
 step count is chosen so one timed repeat lasts about ``--target-seconds``.
 With ``--processes P`` each W >= P is also stepped by ``engine.ParallelStepper``
 in P worker processes (mode ``batched-Pproc``; memory not measured there).
@@ -32,6 +36,8 @@ QUICK_WORLDS = (1, 8)
 QUICK_STEPS = 3
 QUICK_REPEATS = 2
 CONTROL_BANK = 8
+SETTLE_WORLDS = 64
+SETTLE_SECONDS = 1.5
 MUJOCO_WORLDS = 1024
 QUICK_MUJOCO_WORLDS = 32
 MUJOCO_EPISODE = 100
@@ -106,8 +112,17 @@ def step_peak_bytes(model, state, control) -> int:
         tracemalloc.stop()
 
 
-def bench_scene(name, model, worlds, args):
-    state0 = model.initial_state(worlds)
+def settled_state(model, seconds):
+    """``SETTLE_WORLDS`` worlds after ``seconds`` of the random torques of ``random_controls``."""
+    state = model.initial_state(SETTLE_WORLDS)
+    controls = random_controls(model, SETTLE_WORLDS, seed=1)
+    for i in range(int(round(seconds / model.settings.dt))):
+        step(model, state, controls[i % len(controls)])
+    return state
+
+
+def bench_scene(name, model, worlds, start, args):
+    state0 = start.select(np.arange(worlds) % start.num_worlds)
     controls = random_controls(model, worlds)
 
     def make_run(n):
@@ -125,9 +140,9 @@ def bench_scene(name, model, worlds, args):
                state_bytes + temp_bytes, state_bytes)
 
 
-def bench_parallel(name, model, worlds, processes, args):
+def bench_parallel(name, model, worlds, processes, start, args):
     """The same scene and controls stepped by ``engine.ParallelStepper``."""
-    state0 = model.initial_state(worlds)
+    state0 = start.select(np.arange(worlds) % start.num_worlds)
     controls = random_controls(model, worlds)
     state = state0.copy()
     with ParallelStepper(model, state, processes) as stepper:
@@ -156,13 +171,18 @@ def ragdoll_rows(args, notes):
         except Exception as exc:
             notes.append(f"{name}: skipped, the scene does not build: {exc}")
             continue
+        try:
+            start = settled_state(model, args.settle_seconds)
+        except Exception as exc:
+            notes.append(f"{name}: skipped, stepping failed while settling: {type(exc).__name__}: {exc}")
+            continue
         for worlds in args.worlds:
             try:
-                rows.append(bench_scene(name, model, worlds, args))
+                rows.append(bench_scene(name, model, worlds, start, args))
                 print(f"measured {name} W={worlds}", flush=True)
                 for processes in args.processes:
                     if 1 < processes <= worlds:
-                        rows.append(bench_parallel(name, model, worlds, processes, args))
+                        rows.append(bench_parallel(name, model, worlds, processes, start, args))
                         print(f"measured {name} W={worlds} in {processes} processes", flush=True)
             except Exception as exc:
                 notes.append(f"{name} W={worlds}: skipped, stepping failed: {type(exc).__name__}: {exc}")
@@ -337,6 +357,8 @@ def parse_args(argv):
     p.add_argument("--repeats", type=positive_int, help="timed repeats; the median is reported (default 3)")
     p.add_argument("--scenes", nargs="+", choices=list(SCENES), default=list(SCENES))
     p.add_argument("--target-seconds", type=positive_float, default=1.0, help="wall time per repeat when --steps is not given")
+    p.add_argument("--settle-seconds", type=float, default=SETTLE_SECONDS,
+                   help=f"simulated seconds of random torques before timing and measuring memory (default {SETTLE_SECONDS})")
     p.add_argument("--quick", action="store_true", help="small W list, few steps: a smoke test")
     p.add_argument("--json", metavar="PATH", help="write the rows as a JSON list")
     p.add_argument("--compare-mujoco", action="store_true", help="measure MuJoCo's humanoid and Humanoid-v5 too")
@@ -347,11 +369,14 @@ def parse_args(argv):
                    help="also step each W >= P in P worker processes (engine.ParallelStepper): "
                         "rows of mode batched-Pproc")
     args = p.parse_args(argv)
+    if not args.settle_seconds >= 0:
+        p.error(f"--settle-seconds must be >= 0, got {args.settle_seconds}")
     if args.quick:
         args.worlds = args.worlds or list(QUICK_WORLDS)
         args.steps = args.steps or QUICK_STEPS
         args.repeats = args.repeats or QUICK_REPEATS
         args.mujoco_worlds = args.mujoco_worlds or QUICK_MUJOCO_WORLDS
+        args.settle_seconds = min(args.settle_seconds, 0.1)
     args.worlds = args.worlds or list(DEFAULT_WORLDS)
     args.repeats = args.repeats or 3
     args.mujoco_worlds = args.mujoco_worlds or MUJOCO_WORLDS

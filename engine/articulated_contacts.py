@@ -27,8 +27,13 @@ the joints in the metric:
   level, with no joint error for the joint solve to hand back.
 
 Z and A are computed once per step at the step's start positions, as the
-contact rows keep their lever arms for the step. Memory per world: columns
-(12 per row: 4 points x 3 directions) x (6 x bodies + 7 x columns) floats.
+contact rows keep their lever arms for the step. There are three columns
+(normal, two friction directions) per valid contact point, packed per world
+and padded to the batch's largest count C; memory per world: C x (6 x bodies
++ 7 + C) floats for Z, J, A and the per-column arrays, and the tree's
+substitution briefly holds about five more C x 6 x bodies. A ragdoll lying
+on the ground has up to about 31 valid points (C = 93) against 14 rows of 4
+point slots (168 columns when every slot had its columns).
 
 Restitution: a point's closing speed just before it first takes load in the
 step is recorded as in ``contact_solver``, and its bounce (``bounce``) raises
@@ -61,32 +66,35 @@ class ArticulatedContacts:
         self.empty = rows.size == 0 or tree is None
         if self.empty:
             return
-        W, N, P = state.num_worlds, model.num_bodies, cr.valid.shape[1]
-        # Each row's slot among its world's rows; column (slot, point, direction).
-        w = cr.w[rows]
-        order = np.argsort(w, kind="stable")
-        ws = w[order]
-        slot = np.empty(rows.size, dtype=np.int64)
-        slot[order] = np.arange(rows.size) - np.searchsorted(ws, ws, side="left")
-        self.W, self.N, self.P, self.slots = W, N, P, int(slot.max() + 1)
-        C = self.slots * P * 3
-        self.col = slot[:, None, None] * (P * 3) + np.arange(P)[None, :, None] * 3 + np.arange(3)  # (rows, P, 3)
-        self.wi = np.broadcast_to(w[:, None], (rows.size, P))
-        valid = cr.valid[rows]
-        d = np.broadcast_to(np.stack((cr.n[rows], cr.t1[rows], cr.t2[rows]), axis=1)[:, None], (rows.size, P, 3, 3))
-        J = np.concatenate((d, cross(np.broadcast_to(cr.rb[rows][:, :, None], d.shape), d)), axis=-1)
-        J = J * valid[..., None, None]  # (rows, P, direction, 6)
-        wi3 = np.broadcast_to(w[:, None, None], self.col.shape)
-        bi3 = np.broadcast_to(cr.b[rows][:, None, None], self.col.shape)
+        W, N = state.num_worlds, model.num_bodies
+        # One column per valid point and direction, packed per world: a
+        # point's index k among its world's valid points (in row and point
+        # order) gives its normal column 3k and friction columns 3k+1, 3k+2.
+        # A world's columns come in the order the rows came, and the padding
+        # up to the batch's largest count is inert (valid False, J = 0).
+        ri, pi = np.nonzero(cr.valid[rows])  # the valid points: local row, point
+        pw = cr.w[rows][ri]
+        order = np.argsort(pw, kind="stable")
+        pws = pw[order]
+        k = np.empty(ri.size, dtype=np.int64)
+        k[order] = np.arange(ri.size) - np.searchsorted(pws, pws, side="left")
+        self.W, self.N, self.points = W, N, int(k.max() + 1) if k.size else 0
+        C = 3 * self.points
+        self.pt_local, self.pt_row, self.pt_p = (ri, pi), rows[ri], pi
+        self.pt_w, self.pt_col = pw, 3 * k  # the point's world and normal column
+        d = np.stack((cr.n[self.pt_row], cr.t1[self.pt_row], cr.t2[self.pt_row]), axis=1)  # (points, direction, 3)
+        J = np.concatenate((d, cross(np.broadcast_to(cr.rb[self.pt_row, pi][:, None], d.shape), d)), axis=-1)
+        w3 = np.broadcast_to(pw[:, None], (ri.size, 3))
+        col3 = self.pt_col[:, None] + np.arange(3)
+        b3 = np.broadcast_to(cr.b[self.pt_row][:, None], w3.shape)
         # Each column acts on one body: its 6-vector J (W, C, 6) and body (W, C) (padding: body 0, J = 0).
         self.J = np.zeros((W, C, 6))
-        self.J[wi3, self.col] = J
+        self.J[w3, col3] = J
         self.body = np.zeros((W, C), dtype=np.int64)
-        self.body[wi3, self.col] = bi3
-        self.world = np.arange(W)[:, None]
+        self.body[w3, col3] = b3
         U = np.zeros((W, N, 6, C))
-        U[wi3, bi3, :, self.col] = np.concatenate(
-            (J[..., :3] * model.inv_mass[bi3][..., None], mat_vec(tree.iinv[wi3, bi3], J[..., 3:])), axis=-1)
+        U[w3, b3, :, col3] = np.concatenate(
+            (J[..., :3] * model.inv_mass[b3][..., None], mat_vec(tree.iinv[w3, b3], J[..., 3:])), axis=-1)
         # Z = U - M⁻¹ J_tᵀ K⁻¹ J_t U, through the tree's factors at these positions.
         a, b, _, _, _, _, _, Ja, Jb, mask = tree.blocks(js, state, tree)
         B = (np.matmul(Ja, U[:, a]) + np.matmul(Jb, U[:, b])) * mask[..., None]
@@ -94,7 +102,9 @@ class ArticulatedContacts:
         F = tree.body_columns(Ja, Jb, X)
         U[..., :3, :] -= F[..., :3, :] * model.inv_mass[:, None, None]
         U[..., 3:, :] -= np.matmul(tree.iinv, F[..., 3:, :])
-        self.Z = U.reshape(W, N * 6, C)
+        # Z stored by columns, each contiguous: Z_columns[w, i] = Z[w, :, i] (W, C, 6 N).
+        self.Z_columns = np.ascontiguousarray(U.reshape(W, N * 6, C).transpose(0, 2, 1))
+        del U, B, X, F
         self.M, self.tree_bodies = tree.M, tree.t.bodies  # the metric of the joint solve, for _velocities
         # A = J_c Z (W, C, C), stored by columns, each contiguous: A_columns[w, i]
         # = A[w, :, i], the column velocities' change per unit impulse on column
@@ -104,38 +114,40 @@ class ArticulatedContacts:
         # element by element: a matrix product over the padded columns rounded
         # differently with the batch's column count, and a world stepped alone
         # left the batch's trajectory after 82 steps.
-        Z4 = U.reshape(W, N, 6, C)
-        At = np.zeros((W, C, C))
+        self.A_columns = np.zeros((W, C, C))
+        term = np.empty((W, C, C))
         for d in range(6):
-            At += self.J[:, :, d, None] * Z4[:, :, d, :][self.world, self.body]
-        self.A_columns = np.ascontiguousarray(At.transpose(0, 2, 1))
+            rows_d = np.broadcast_to((6 * self.body + d)[:, None, :], (W, C, C))
+            np.multiply(np.take_along_axis(self.Z_columns, rows_d, axis=2), self.J[:, None, :, d], out=term)
+            self.A_columns += term
         diag = np.einsum("wcc->wc", self.A_columns)
         self.m = np.where(diag > 0, 1.0 / np.where(diag > 0, diag, 1.0), 0.0)  # effective masses
         self.valid = np.zeros((W, C), dtype=bool)
-        self.valid[wi3, self.col] = np.broadcast_to(valid[..., None], self.col.shape)
+        self.valid[w3, col3] = True
         self.mu = np.zeros((W, C))
-        self.mu[self.wi, self.col[..., 0]] = cr.mu[rows]
-        self.normals = np.flatnonzero(self.valid[:, ::3].any(axis=0)) * 3  # normal columns valid in some world
-        self.used = (self.normals[:, None] + np.arange(3)).ravel()  # their normal and friction columns
+        self.mu[pw, self.pt_col] = cr.mu[self.pt_row, pi]
+        self.normals = np.arange(0, C, 3)  # every normal column is some world's point
         self.sweeps = model.settings.articulated_contact_sweeps
 
     # ------------------------------------------------------------------ impulses
     def _gather(self, cr):
-        """The rows' accumulated impulses as (W, columns)."""
-        lam = np.zeros((self.W, self.Z.shape[-1]))
+        """The valid points' accumulated impulses as (W, columns)."""
+        lam = np.zeros(self.valid.shape)
         for k, src in enumerate((cr.lam_n, cr.lam_t1, cr.lam_t2)):
-            lam[self.wi, self.col[..., k]] = src[self.rows]
+            lam[self.pt_w, self.pt_col + k] = src[self.pt_row, self.pt_p]
         return lam
 
     def _scatter(self, cr, lam):
+        """Impulses (W, columns) back to the rows' points (0 at invalid points)."""
         for k, dst in enumerate((cr.lam_n, cr.lam_t1, cr.lam_t2)):
-            dst[self.rows] = lam[self.wi, self.col[..., k]]
+            dst[self.rows] = 0.0
+            dst[self.pt_row, self.pt_p] = lam[self.pt_w, self.pt_col + k]
         cr.max_lam_n[self.rows] = np.maximum(cr.max_lam_n[self.rows], cr.lam_n[self.rows])
 
     def _normal_columns(self, values):
-        """Per-point values (rows, P) of the rows as (W, columns) at the normal columns."""
+        """Per-point values (rows, P) of the rows as (W, columns) at the valid points' normal columns."""
         out = np.zeros(self.valid.shape)
-        out[self.wi, self.col[..., 0]] = values
+        out[self.pt_w, self.pt_col] = values[self.pt_local]
         return out
 
     def _velocities(self, state):
@@ -153,17 +165,16 @@ class ArticulatedContacts:
         p[:, self.tree_bodies] = np.matmul(self.M, v)[..., 0]
         # Summed over the body rows in order for each column (einsum's loop), so
         # a world's columns do not depend on how many the batch pads to.
-        return np.einsum("wk,wkc->wc", p.reshape(self.W, self.N * 6), self.Z)
+        return np.einsum("wk,wck->wc", p.reshape(self.W, self.N * 6), self.Z_columns)
 
     def _apply(self, state, lam):
         """Velocities += Z λ (every body of each articulation), summed column
-        by column over the columns valid in some world: a matrix product over
-        all of them would sum each world's columns in an order that depends on
-        how many the batch pads them to, and a world stepped alone would
-        differ from the same world in a batch in the last bits."""
+        by column: a matrix product would sum each world's columns in an order
+        that depends on how many the batch pads them to, and a world stepped
+        alone would differ from the same world in a batch in the last bits."""
         dv = np.zeros((self.W, self.N * 6))
-        for i in self.used:
-            dv += self.Z[:, :, i] * lam[:, i, None]
+        for i in range(lam.shape[1]):
+            dv += self.Z_columns[:, i] * lam[:, i, None]
         dv = dv.reshape(self.W, self.N, 6)
         state.velocity += dv[..., :3]
         state.angular_velocity += dv[..., 3:]
@@ -223,8 +234,8 @@ class ArticulatedContacts:
                 t1, t2 = t1 * scale, t2 * scale
                 u += A[:, i + 1] * (t1 - lam[:, i + 1])[:, None] + A[:, i + 2] * (t2 - lam[:, i + 2])[:, None]
                 lam[:, i + 1], lam[:, i + 2] = t1, t2
-        cr.vn_close[self.rows] = v_close[self.wi, self.col[..., 0]]
-        cr.s_close[self.rows] = s_close[self.wi, self.col[..., 0]]
+        cr.vn_close[self.pt_row, self.pt_p] = v_close[self.pt_w, self.pt_col]
+        cr.s_close[self.pt_row, self.pt_p] = s_close[self.pt_w, self.pt_col]
         self._apply(state, lam - start)
         self._scatter(cr, lam)
 

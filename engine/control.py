@@ -35,6 +35,10 @@ class Control:
             torque=np.zeros((num_worlds, model.num_bodies, 3)) if force else None,
         )
 
+    def worlds(self, lo: int, hi: int) -> "Control":
+        """The inputs of worlds [lo, hi) (views where the inputs are arrays)."""
+        return Control(*(None if a is None else np.asarray(a)[lo:hi] for a in (self.motor, self.force, self.torque)))
+
     def add_force_at_point(self, model, body, force, point, positions):
         """Add a world-frame force (N) at a world point (m) on ``body``:
         a force at the centre plus the torque (p - x) × F.

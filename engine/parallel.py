@@ -20,14 +20,13 @@ from __future__ import annotations
 
 import mmap
 import multiprocessing as mp
-from dataclasses import replace
 
 import numpy as np
 
 from .control import Control
 from .errors import SimulationError
 from .state import State
-from .step import _check_control, _check_state, _nonfinite_error, step
+from .step import _check_control, _check_state, _nonfinite_error, shift_worlds, step
 
 _ALIGN = 64  # bytes: each array starts on a cache line
 
@@ -99,7 +98,7 @@ class ParallelStepper:
         try:
             for k, (conn, lo, hi) in enumerate(zip(self._conns, self.bounds[:-1], self.bounds[1:])):
                 try:
-                    conn.send((err, None if control is None else _slice_control(control, lo, hi)))
+                    conn.send((err, None if control is None else control.worlds(lo, hi)))
                 except (BrokenPipeError, OSError):
                     failures.append(self._worlds(k) + " died")
             for k, conn in enumerate(self._conns):
@@ -169,11 +168,6 @@ def _share(state: State) -> None:
         state.arrays[k] = shared
 
 
-def _slice_control(control: Control, lo: int, hi: int) -> Control:
-    return Control(*(None if a is None else np.asarray(a)[lo:hi] for a in
-                     (control.motor, control.force, control.torque)))
-
-
 def _worker(conn, model, state, lo, hi):
     """Step worlds [lo, hi) of ``state`` (views of the shared arrays) on each
     (numpy error state, control) received, until "stop"."""
@@ -189,12 +183,8 @@ def _worker(conn, model, state, lo, hi):
         try:
             with np.errstate(**err):
                 step(model, part, control)
-            conn.send(("ok", _global_events(part, lo)))
+            conn.send(("ok", shift_worlds(part.events, lo)))
         except SimulationError:
-            conn.send(("nonfinite", _global_events(part, lo)))
+            conn.send(("nonfinite", shift_worlds(part.events, lo)))
         except Exception as exc:  # reported by the parent, which closes the pool
             conn.send(("error", f"{type(exc).__name__}: {exc}"))
-
-
-def _global_events(part, lo):
-    return [replace(e, world=e.world + lo) for e in part.events]

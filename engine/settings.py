@@ -421,6 +421,16 @@ class Settings:
         plus the distance travelled in one step.
     check_finite: raise ``SimulationError`` naming the world, body and step
         when a state turns non-finite (else only flag it).
+    world_chunk: most worlds stepped in one pass; a larger batch is stepped
+        as consecutive slices of this many worlds (views of the state, so
+        nothing is copied), each through the whole step. A world's step does
+        not depend on the others, so the trajectories are bit-identical to
+        one pass; what changes is the size of the step's temporaries, which
+        grow with the worlds of a pass (those of the articulated contacts
+        with the square of the contact points): the ragdoll under random
+        torques on the ground took 1.2 MB per world at W = 256 after its
+        fall, and at W = 1024 in one pass stepped about a fifth slower than
+        in four of 256 (cache misses). None or 0: one pass.
     """
 
     dt: float = 1.0 / 60.0
@@ -464,6 +474,7 @@ class Settings:
     linear_slop: float = 0.0
     speculative_distance: float = 0.02
     check_finite: bool = True
+    world_chunk: int | None = 256
 
     def validate(self) -> None:
         for f in fields(self):
@@ -478,8 +489,10 @@ class Settings:
             v = getattr(self, name)
             if int(v) != v or v < 1:
                 raise ValueError(f"settings: {name} must be an integer >= 1, got {v!r}")
-        for name in ("relax_iterations", "free_contact_relax_passes", "joint_projection_passes"):
+        for name in ("relax_iterations", "free_contact_relax_passes", "joint_projection_passes", "world_chunk"):
             v = getattr(self, name)
+            if v is None and name == "world_chunk":
+                continue
             if int(v) != v or v < 0:
                 raise ValueError(f"settings: {name} must be an integer >= 0, got {v!r}")
         if self.integrator not in INTEGRATORS:

@@ -19,10 +19,14 @@
                    non-finite check
 
 The state is advanced in place and returned. Nothing here loops over worlds,
-bodies, contacts or constraints of one colour.
+bodies, contacts or constraints of one colour; a batch larger than
+``Settings.world_chunk`` goes through in slices of that many worlds, which
+bounds the step's temporaries without changing a bit of any trajectory.
 """
 
 from __future__ import annotations
+
+from dataclasses import replace
 
 import numpy as np
 
@@ -31,6 +35,7 @@ from .control import Control
 from .errors import SimulationError
 from .integrators import explicit_euler, integrate_positions, integrate_velocities, runge_kutta4
 from .math3d import quat_integrate
+from .state import State
 
 
 def _check_control(model, state, control):
@@ -60,6 +65,32 @@ def step(model, state, control: Control | None = None):
     """
     _check_state(model, state)
     control = _check_control(model, state, control)
+    W, chunk = state.num_worlds, model.settings.world_chunk
+    if chunk and W > chunk:
+        # Slices of the world axis are views: each pass advances its worlds in place.
+        events = []
+        for lo in range(0, W, chunk):
+            hi = min(lo + chunk, W)
+            part = State({k: v[lo:hi] for k, v in state.arrays.items()})
+            _advance(model, part, None if control is None else control.worlds(lo, hi))
+            events += shift_worlds(part.events, lo)
+        state.events = events
+    else:
+        _advance(model, state, control)
+    if model.settings.check_finite:
+        bad = state.nonfinite_worlds()
+        if bad.size:
+            raise _nonfinite_error(model, state, bad)
+    return state
+
+
+def shift_worlds(events, lo):
+    """``events`` of a slice of worlds starting at ``lo``, renumbered to the whole batch."""
+    return [replace(e, world=e.world + lo) for e in events]
+
+
+def _advance(model, state, control):
+    """The step of ``step`` on checked inputs, without the non-finite check."""
     s = model.settings
     h = s.dt / s.substeps
     events = []
@@ -125,11 +156,6 @@ def step(model, state, control: Control | None = None):
         effect.end_of_step(model, state, events)
     state.step += 1
     state.events = events
-    if s.check_finite:
-        bad = state.nonfinite_worlds()
-        if bad.size:
-            raise _nonfinite_error(model, state, bad)
-    return state
 
 
 def _positions_moved(model, state, constraints):

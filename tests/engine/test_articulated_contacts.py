@@ -54,18 +54,18 @@ def test_response_keeps_every_joint_and_gives_a_delassus_matrix():
     assert not art.empty and art.rows.size >= 2
     tree = joints.tree
     a, b, _, _, _, _, _, Ja, Jb, mask = tree.blocks(joints, state, tree)
-    Z = art.Z.reshape(art.W, art.N, 6, -1)
+    Z = art.Z_columns.transpose(0, 2, 1).reshape(art.W, art.N, 6, -1)
     joint_rows = (np.matmul(Ja, Z[:, a]) + np.matmul(Jb, Z[:, b])) * mask[..., None]
     assert np.abs(joint_rows).max() <= 1e-9 * np.abs(Z).max()
     v = art.valid[0]
     A = art.A_columns[0].T[np.ix_(v, v)]
     assert np.abs(A - A.T).max() <= 1e-12 * np.abs(A).max()
     assert np.linalg.eigvalsh(0.5 * (A + A.T)).min() >= -1e-9 * np.abs(A).max()
-    single = rows.mn[art.rows]  # one body's normal effective masses (rows, P)
-    articulated = art.m[art.wi, art.col[..., 0]]
-    ok = rows.valid[art.rows]
-    assert np.all(articulated[ok] >= single[ok] * (1 - 1e-9))
-    assert np.any(articulated[ok] > 2.0 * single[ok])  # a foot on the ground carries more than the foot
+    assert art.valid.sum() == 3 * rows.valid[art.rows].sum()  # a normal and two friction columns per valid point
+    single = rows.mn[art.pt_row, art.pt_p]  # one body's normal effective masses of the valid points
+    articulated = art.m[art.pt_w, art.pt_col]
+    assert np.all(articulated >= single * (1 - 1e-9))
+    assert np.any(articulated > 2.0 * single)  # a foot on the ground carries more than the foot
 
 
 def test_rigid_ragdoll_lands_and_rests_with_its_joints_closed():
