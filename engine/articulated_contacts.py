@@ -50,6 +50,8 @@ import numpy as np
 from .contact_solver import _coulomb_scale, _separation
 from .math3d import cross, mat_vec
 
+COLUMN_BLOCK = 24  # contact columns per pass of the tree substitution in Z (8 points)
+
 
 class ArticulatedContacts:
     """The rows of a step's ``ContactRows`` ``cr`` between a static body and a
@@ -92,19 +94,25 @@ class ArticulatedContacts:
         self.J[w3, col3] = J
         self.body = np.zeros((W, C), dtype=np.int64)
         self.body[w3, col3] = b3
-        U = np.zeros((W, N, 6, C))
-        U[w3, b3, :, col3] = np.concatenate(
+        response = np.concatenate(  # U_i = M⁻¹ J_iᵀ on the column's body (points, direction, 6)
             (J[..., :3] * model.inv_mass[b3][..., None], mat_vec(tree.iinv[w3, b3], J[..., 3:])), axis=-1)
-        # Z = U - M⁻¹ J_tᵀ K⁻¹ J_t U, through the tree's factors at these positions.
+        # Z = U - M⁻¹ J_tᵀ K⁻¹ J_t U, through the tree's factors at these
+        # positions, COLUMN_BLOCK columns at a time: the substitution's
+        # temporaries are several times the size of the columns it is given.
+        # Z is stored by columns, each contiguous: Z_columns[w, i] = Z[w, :, i].
         a, b, _, _, _, _, _, Ja, Jb, mask = tree.blocks(js, state, tree)
-        B = (np.matmul(Ja, U[:, a]) + np.matmul(Jb, U[:, b])) * mask[..., None]
-        X = tree._substitute_columns(tree._factor(Ja, Jb, mask), B)
-        F = tree.body_columns(Ja, Jb, X)
-        U[..., :3, :] -= F[..., :3, :] * model.inv_mass[:, None, None]
-        U[..., 3:, :] -= np.matmul(tree.iinv, F[..., 3:, :])
-        # Z stored by columns, each contiguous: Z_columns[w, i] = Z[w, :, i] (W, C, 6 N).
-        self.Z_columns = np.ascontiguousarray(U.reshape(W, N * 6, C).transpose(0, 2, 1))
-        del U, B, X, F
+        factors = tree._factor(Ja, Jb, mask)
+        self.Z_columns = np.empty((W, C, N * 6))
+        for lo in range(0, C, COLUMN_BLOCK):
+            hi = min(lo + COLUMN_BLOCK, C)
+            sel = (col3 >= lo) & (col3 < hi)
+            U = np.zeros((W, N, 6, hi - lo))
+            U[w3[sel], b3[sel], :, col3[sel] - lo] = response[sel]
+            B = (np.matmul(Ja, U[:, a]) + np.matmul(Jb, U[:, b])) * mask[..., None]
+            F = tree.body_columns(Ja, Jb, tree._substitute_columns(factors, B))
+            U[..., :3, :] -= F[..., :3, :] * model.inv_mass[:, None, None]
+            U[..., 3:, :] -= np.matmul(tree.iinv, F[..., 3:, :])
+            self.Z_columns[:, lo:hi] = U.reshape(W, N * 6, hi - lo).transpose(0, 2, 1)
         self.M, self.tree_bodies = tree.M, tree.t.bodies  # the metric of the joint solve, for _velocities
         # A = J_c Z (W, C, C), stored by columns, each contiguous: A_columns[w, i]
         # = A[w, :, i], the column velocities' change per unit impulse on column
@@ -115,11 +123,11 @@ class ArticulatedContacts:
         # differently with the batch's column count, and a world stepped alone
         # left the batch's trajectory after 82 steps.
         self.A_columns = np.zeros((W, C, C))
-        term = np.empty((W, C, C))
         for d in range(6):
-            rows_d = np.broadcast_to((6 * self.body + d)[:, None, :], (W, C, C))
-            np.multiply(np.take_along_axis(self.Z_columns, rows_d, axis=2), self.J[:, None, :, d], out=term)
+            term = np.take_along_axis(self.Z_columns, np.broadcast_to((6 * self.body + d)[:, None, :], (W, C, C)), 2)
+            term *= self.J[:, None, :, d]
             self.A_columns += term
+            del term
         diag = np.einsum("wcc->wc", self.A_columns)
         self.m = np.where(diag > 0, 1.0 / np.where(diag > 0, diag, 1.0), 0.0)  # effective masses
         self.valid = np.zeros((W, C), dtype=bool)

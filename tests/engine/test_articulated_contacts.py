@@ -223,11 +223,12 @@ def test_column_velocities_match_the_joint_solve_across_worlds_with_uneven_conta
     state.velocity[:, 1:] += rng.normal(0.0, 0.5, state.velocity[:, 1:].shape)
     state.angular_velocity[:, 1:] += rng.normal(0.0, 3.0, state.angular_velocity[:, 1:].shape)
     got = art._velocities(state)
+    world = np.arange(art.W)[:, None]
     raw = np.einsum("wck,wck->wc", art.J, np.concatenate((state.velocity, state.angular_velocity),
-                                                          axis=-1)[art.world, art.body])
+                                                          axis=-1)[world, art.body])
     joints.solve(model, state, model.settings.dt / model.settings.substeps, False)
     v = np.concatenate((state.velocity, state.angular_velocity), axis=-1)
-    expected = np.einsum("wck,wck->wc", art.J, v[art.world, art.body])
+    expected = np.einsum("wck,wck->wc", art.J, v[world, art.body])
     scale = np.abs(expected).max()
     assert np.abs(got - expected).max() <= 1e-9 * scale
     assert np.abs(raw - expected).max() > 0.1 * scale
