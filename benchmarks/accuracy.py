@@ -116,7 +116,8 @@ def settings_dict(label, s: Settings, **extra):
          "free_joint_hertz": s.free_joint_hertz, "free_joint_geometric_stiffness": s.free_joint_geometric_stiffness,
          "joint_relax": s.joint_relax, "joint_projection_passes": s.joint_projection_passes,
          "contact_hertz": s.contact_hertz, "joint_limits_in_tree": s.limits_in_tree,
-         "joint_projection_slop": s.joint_projection_slop, "articulated_contacts": s.contacts_articulated,
+         "joint_projection_slop": s.joint_projection_slop, "free_joint_projection_slop": s.free_joint_projection_slop,
+         "articulated_contacts": s.contacts_articulated, "articulated_contact_sweeps": s.articulated_contact_sweeps,
          "thesis_baseline": s.solver == "thesis" and s.integrator == "euler"}
     d.update(extra)
     return d
