@@ -109,6 +109,27 @@ def require_run_dir(path) -> Path:
     return p
 
 
+#: Settings fields that never change a trajectory, left out of a run's record.
+_NOT_PHYSICS = ("check_finite", "world_chunk")
+
+
+def engine_settings(venv) -> dict:
+    """The engine settings of the batched core under ``venv`` (any SB3
+    wrappers), as recorded in a run's config.json: every field of
+    ``engine.Settings`` that changes a trajectory."""
+    from dataclasses import asdict
+
+    return {k: v for k, v in asdict(venv.core.settings).items() if k not in _NOT_PHYSICS}
+
+
+def settings_changes(recorded: dict | None, current: dict) -> dict:
+    """{field: (recorded, current)} for the fields whose values differ
+    (empty when the run recorded none: runs before 2026-12-04)."""
+    if not recorded:
+        return {}
+    return {k: (recorded.get(k), v) for k, v in current.items() if recorded.get(k, v) != v}
+
+
 def read_run_config(run_dir) -> dict:
     p = require_run_dir(run_dir) / CONFIG_FILE
     try:

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import time
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -223,6 +224,11 @@ def evaluate(args) -> dict:
 
     residual = saved["config"].get("residual")
     loaded = load_agent(run, saved, num_envs, args.seed, env_kwargs)
+    changed = C.settings_changes(saved.get("engine_settings"), C.engine_settings(loaded.venv))
+    if changed:
+        warnings.warn(f"{run} was trained with other engine settings than this evaluation steps with "
+                      f"(field: (trained, now)): {changed}; give the trained values as env_kwargs in the run's "
+                      f"config.json to evaluate as trained", stacklevel=2)
     agent = rollout(loaded.env, lambda obs: loaded.act(obs, args.deterministic), args.episodes)
     result = {
         "run_dir": str(run),
@@ -234,6 +240,7 @@ def evaluate(args) -> dict:
         "deterministic": bool(args.deterministic),
         "seed": args.seed,
         "env_kwargs": env_kwargs,
+        "engine_settings_changed": {k: list(v) for k, v in changed.items()},
         "residual": residual,
         "max_return": getattr(loaded.venv, "max_return", None),
         **agent,
@@ -286,6 +293,8 @@ def print_report(result) -> None:
         if has_push and "mean_pushes" in r:
             line += f"{r['mean_pushes']:>9.2f}{r['mean_pushes_survived']:>10.2f}"
         print(line)
+    for field, (trained, now) in result.get("engine_settings_changed", {}).items():
+        print(f"engine setting {field}: trained with {trained!r}, evaluated with {now!r}")
     if result.get("video_error"):
         print(f"video: {result['video_error']}")
     elif result.get("videos"):

@@ -8,7 +8,9 @@ The worlds are stepped as one batch by ``ragdoll_env.sb3`` (an SB3 VecEnv),
 wrapped in VecMonitor (``monitor*.csv``) and VecNormalize. A run directory holds:
 
 =========================  ==========================================================
-config.json                env id, seed, number of envs, the resolved settings
+config.json                env id, seed, number of envs, the resolved settings, the engine
+                           settings the run was trained with (``training.evaluate`` warns
+                           when it steps with others)
 summary.json               the above + versions, timesteps, wall time, evaluation history
 checkpoints/               ppo_<N>_steps.zip + ppo_vecnormalize_<N>_steps.pkl
 best_model.zip             the EvalCallback's best model (+ best_vecnormalize.pkl)
@@ -30,6 +32,7 @@ import datetime as _dt
 import json
 import os
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -377,7 +380,14 @@ def train(args) -> dict:
     if not args.resume and (run / C.CONFIG_FILE).exists():
         print(f"{run}: its {C.CONFIG_FILE} is of a run that stopped before its first checkpoint; starting afresh")
     run.mkdir(parents=True, exist_ok=True)
+    settings = C.engine_settings(venv)
+    if args.resume:
+        changed = C.settings_changes(saved.get("engine_settings"), settings)
+        if changed:
+            warnings.warn(f"{run}: resumed with engine settings other than the run's first session's "
+                          f"(field: (recorded, now)): {changed}", stacklevel=2)
     run_cfg = {"env_id": env_id, "seed": seed, "num_envs": num_envs, "timesteps": total, "config": cfg,
+               "engine_settings": saved.get("engine_settings") if args.resume else settings,
                "sessions": sessions}
     C.write_json(run / C.CONFIG_FILE, run_cfg)
     _log_episodes(venv, run / f"train_{len(sessions)}.monitor.csv", env_id)

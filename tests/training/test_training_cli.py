@@ -227,3 +227,28 @@ def test_push_sweep_needs_a_balance_run(tiny_run):
 
     with pytest.raises(SystemExit, match="needs a Ragdoll/Balance-v0 run"):
         push_sweep.main([str(tiny_run), "--episodes", "1"])
+
+
+def test_a_run_records_its_engine_settings_and_evaluation_names_the_changed_ones(tiny_run, tmp_path):
+    """config.json keeps the engine settings the run was trained with; an
+    evaluation in an engine that steps otherwise warns and reports each
+    changed field with its trained and current values."""
+    import engine
+
+    saved = json.loads((tiny_run / "config.json").read_text())
+    recorded = saved["engine_settings"]
+    assert recorded["joint_projection_slop"] == engine.Settings().joint_projection_slop
+    assert "world_chunk" not in recorded  # it never changes a trajectory
+    out = tmp_path / "same.json"
+    evaluate.main([str(tiny_run), "--episodes", "1", "--no-baselines", "--json", str(out)])
+    assert json.loads(out.read_text())["engine_settings_changed"] == {}
+
+    run = tmp_path / "older"
+    shutil.copytree(tiny_run, run)
+    saved["engine_settings"] = {**recorded, "joint_projection_slop": 0.005}
+    (run / "config.json").write_text(json.dumps(saved))
+    out = tmp_path / "changed.json"
+    with pytest.warns(UserWarning, match="joint_projection_slop"):
+        evaluate.main([str(run), "--episodes", "1", "--no-baselines", "--json", str(out)])
+    changed = json.loads(out.read_text())["engine_settings_changed"]
+    assert changed == {"joint_projection_slop": [0.005, recorded["joint_projection_slop"]]}
