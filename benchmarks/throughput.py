@@ -116,7 +116,7 @@ def settled_state(model, seconds):
     """``SETTLE_WORLDS`` worlds after ``seconds`` of the random torques of ``random_controls``."""
     state = model.initial_state(SETTLE_WORLDS)
     controls = random_controls(model, SETTLE_WORLDS, seed=1)
-    for i in range(int(round(seconds / model.settings.dt))):
+    for i in range(round(seconds / model.settings.dt)):
         step(model, state, controls[i % len(controls)])
     return state
 

@@ -35,7 +35,7 @@ class Control:
             torque=np.zeros((num_worlds, model.num_bodies, 3)) if force else None,
         )
 
-    def worlds(self, lo: int, hi: int) -> "Control":
+    def worlds(self, lo: int, hi: int) -> Control:
         """The inputs of worlds [lo, hi) (views where the inputs are arrays)."""
         return Control(*(None if a is None else np.asarray(a)[lo:hi] for a in (self.motor, self.force, self.torque)))
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import engine as e
-from tests.engine.test_parallel import breakable_pair, random_controls, ragdoll_on_ground
+from tests.engine.test_parallel import breakable_pair, ragdoll_on_ground, random_controls
 
 
 def test_slices_step_bit_identically_to_one_pass():
