@@ -30,8 +30,9 @@ Z and A are computed once per step at the step's start positions, as the
 contact rows keep their lever arms for the step. There are three columns
 (normal, two friction directions) per valid contact point, packed per world
 and padded to the batch's largest count C; memory per world: C x (6 x bodies
-+ 7 + C) floats for Z, J, A and the per-column arrays, and the tree's
-substitution briefly holds about five more C x 6 x bodies. A ragdoll lying
++ 7 + C) floats for Z, J, A and the per-column arrays; while they are built,
+the tree's substitution holds about five more COLUMN_BLOCK x 6 x bodies and
+A's build one more C x C. A ragdoll lying
 on the ground has up to about 31 valid points (C = 93) against 14 rows of 4
 point slots (168 columns when every slot had its columns).
 
@@ -80,8 +81,8 @@ class ArticulatedContacts:
         pws = pw[order]
         k = np.empty(ri.size, dtype=np.int64)
         k[order] = np.arange(ri.size) - np.searchsorted(pws, pws, side="left")
-        self.W, self.N, self.points = W, N, int(k.max() + 1) if k.size else 0
-        C = 3 * self.points
+        self.W, self.N = W, N
+        C = 3 * (int(k.max()) + 1 if k.size else 0)
         self.pt_local, self.pt_row, self.pt_p = (ri, pi), rows[ri], pi
         self.pt_w, self.pt_col = pw, 3 * k  # the point's world and normal column
         d = np.stack((cr.n[self.pt_row], cr.t1[self.pt_row], cr.t2[self.pt_row]), axis=1)  # (points, direction, 3)
@@ -171,8 +172,9 @@ class ArticulatedContacts:
         v = np.concatenate((state.velocity, state.angular_velocity), axis=-1)[:, self.tree_bodies, :, None]
         p = np.zeros((self.W, self.N, 6))
         p[:, self.tree_bodies] = np.matmul(self.M, v)[..., 0]
-        # Summed over the body rows in order for each column (einsum's loop), so
-        # a world's columns do not depend on how many the batch pads to.
+        # Each column a dot product over the 6 N body rows (contiguous; einsum
+        # may use partial sums, but their grouping depends on 6 N alone), so a
+        # world's columns do not depend on how many the batch pads to.
         return np.einsum("wk,wck->wc", p.reshape(self.W, self.N * 6), self.Z_columns)
 
     def _apply(self, state, lam):

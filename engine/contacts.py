@@ -115,8 +115,9 @@ class ContactSet:
             return
         a, b = self.pair_a[p_idx], self.pair_b[p_idx]
         pos, quat = state.position, state.orientation
+        # Each pair's own margin: with one margin for all (the largest), a box
+        # pair's choice of its 4 points depended on the other worlds' speeds.
         margin_row = s.speculative_distance + (reach[w_idx, a] + reach[w_idx, b])
-        margin = float(margin_row.max())
         normal = np.empty((w_idx.size, 3))
         point = np.empty((w_idx.size, MAX_POINTS, 3))
         sep = np.empty((w_idx.size, MAX_POINTS))
@@ -130,7 +131,7 @@ class ContactSet:
             ra, rb = a[sl], b[sl]
             wa = w_idx[sl]
             m = fn(pos[wa, ra][None], quat[wa, ra][None], model.shape_params[ra],
-                   pos[wa, rb][None], quat[wa, rb][None], model.shape_params[rb], margin)
+                   pos[wa, rb][None], quat[wa, rb][None], model.shape_params[rb], margin_row[sl][None])
             normal[sl], point[sl], sep[sl], valid[sl] = m.normal[0], m.point[0], m.separation[0], m.valid[0]
         valid &= sep < margin_row[:, None]
         keep = valid.any(axis=1)

@@ -171,7 +171,7 @@ def _share(state: State) -> None:
 def _worker(conn, model, state, lo, hi):
     """Step worlds [lo, hi) of ``state`` (views of the shared arrays) on each
     (numpy error state, control) received, until "stop"."""
-    part = State({k: v[lo:hi] for k, v in state.arrays.items()})
+    part = state.worlds(lo, hi)
     while True:
         try:
             msg = conn.recv()

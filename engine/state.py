@@ -7,7 +7,7 @@ of springs and joints, and the solver's warm-start caches. One world (W = 1)
 is just the smallest batch.
 
 States are plain containers: ``copy``, ``select`` (a subset of worlds, as a
-new state), ``assign`` (write another state into a subset of worlds) and
+new state), ``worlds`` (a slice of them, as views), ``assign`` (write another state into a subset of worlds) and
 ``concatenate`` are all array operations along the world axis.
 """
 
@@ -77,6 +77,10 @@ class State:
         idx = _world_index(worlds, self.num_worlds)
         return State({k: v[idx].copy() for k, v in self.arrays.items()},
                      [e for e in self.events if _contains(idx, e.world, self.num_worlds)])
+
+    def worlds(self, lo: int, hi: int) -> "State":
+        """Worlds [lo, hi) as a state of views: stepping it steps them here."""
+        return State({k: v[lo:hi] for k, v in self.arrays.items()})
 
     def assign(self, worlds, other: "State") -> None:
         """Write ``other``'s worlds into ``worlds`` of this state in place.

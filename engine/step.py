@@ -35,7 +35,6 @@ from .control import Control
 from .errors import SimulationError
 from .integrators import explicit_euler, integrate_positions, integrate_velocities, runge_kutta4
 from .math3d import quat_integrate
-from .state import State
 
 
 def _check_control(model, state, control):
@@ -71,7 +70,7 @@ def step(model, state, control: Control | None = None):
         events = []
         for lo in range(0, W, chunk):
             hi = min(lo + chunk, W)
-            part = State({k: v[lo:hi] for k, v in state.arrays.items()})
+            part = state.worlds(lo, hi)
             _advance(model, part, None if control is None else control.worlds(lo, hi))
             events += shift_worlds(part.events, lo)
         state.events = events
@@ -152,6 +151,8 @@ def _advance(model, state, control):
             _solve(model, state, constraints, h, use_bias=False)
     for c in constraints:
         c.end_step(model, state, h, events)
+    if contacts is not None and contacts.rows is not None:
+        contacts.rows.articulated = None  # its response matrices served this step only
     for effect in model.end_hooks:
         effect.end_of_step(model, state, events)
     state.step += 1

@@ -123,11 +123,13 @@ def engine_settings(venv) -> dict:
 
 
 def settings_changes(recorded: dict | None, current: dict) -> dict:
-    """{field: (recorded, current)} for the fields whose values differ
-    (empty when the run recorded none: runs before 2026-12-04)."""
+    """{field: (recorded, current)} for the fields whose values differ, a
+    field the run did not record (added to the engine since) with None as
+    its recorded value; empty when the run recorded none (runs before
+    2026-12-04)."""
     if not recorded:
         return {}
-    return {k: (recorded.get(k), v) for k, v in current.items() if recorded.get(k, v) != v}
+    return {k: (recorded.get(k), v) for k, v in current.items() if k not in recorded or recorded[k] != v}
 
 
 def read_run_config(run_dir) -> dict:

@@ -34,7 +34,7 @@ def _box_dist2(p, h):
     return dot(d, d)
 
 
-def sphere_box(pos_a, quat_a, params_a, pos_b, quat_b, params_b, margin: float) -> Manifold:
+def sphere_box(pos_a, quat_a, params_a, pos_b, quat_b, params_b, margin) -> Manifold:
     """Sphere a, box b: one point.
 
     Outside: closest point on the box (clamp, Ericson 5.1.4). Centre inside:
@@ -104,7 +104,7 @@ def _segment_box_closest(p0, d, h):
     return best_t, best_d2
 
 
-def capsule_box(pos_a, quat_a, params_a, pos_b, quat_b, params_b, margin: float) -> Manifold:
+def capsule_box(pos_a, quat_a, params_a, pos_b, quat_b, params_b, margin) -> Manifold:
     """Capsule a, box b: one point, or two when the capsule lies along a face.
 
     1. Closest points of the capsule segment and the box (exact, see

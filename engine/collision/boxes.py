@@ -113,7 +113,7 @@ def _reduce(u, v, depth, mask):
     return np.where(many, chosen, compact), np.where(many, chosen_ok, compact_ok)
 
 
-def box_box(pos_a, quat_a, params_a, pos_b, quat_b, params_b, margin: float) -> Manifold:
+def box_box(pos_a, quat_a, params_a, pos_b, quat_b, params_b, margin) -> Manifold:
     """Box a, box b: up to 4 points for face contact, 1 for edge-edge contact.
 
     Face contacts keep the incident face's vertex order in the slots (a box
@@ -203,7 +203,7 @@ def _face_contact(pos_a, ma, ha, pos_b, mb, hb, use_b, f, margin):
             poly, count = _clip(poly, count, coord, side, limit)
 
     depth = sgn[..., None] * poly[..., 0] - hn[..., None]
-    mask = (np.arange(poly.shape[-2]) < count[..., None]) & (depth < margin)
+    mask = (np.arange(poly.shape[-2]) < count[..., None]) & (depth < np.asarray(margin)[..., None])
     idx, ok = _reduce(poly[..., 1], poly[..., 2], depth, mask)
     chosen = np.take_along_axis(poly, idx[..., None], axis=-2)
     sep = np.take_along_axis(depth, idx, axis=-1)

@@ -85,7 +85,7 @@ def aabb(shape_type, params, pos, quat):
     return lo, hi
 
 
-def overlapping(lo, hi, pairs_a, pairs_b, margin: float):
+def overlapping(lo, hi, pairs_a, pairs_b, margin):
     """(W, P) bool: the boxes of pairs_a and pairs_b, each grown by ``margin``
     metres on every side, overlap."""
     la, ha = lo[:, pairs_a], hi[:, pairs_a]

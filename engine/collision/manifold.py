@@ -47,19 +47,20 @@ class Manifold(NamedTuple):
         return self.valid.sum(axis=-1)
 
 
-def assemble(normal, points, separation, exists, margin: float) -> Manifold:
+def assemble(normal, points, separation, exists, margin) -> Manifold:
     """Pad K <= 4 candidate points to a :class:`Manifold`.
 
     normal (..., 3); points (..., K, 3); separation (..., K); exists (..., K)
     bool or None (all exist). A point is valid when it exists, its separation
-    is finite and below ``margin`` (m).
+    is finite and below ``margin`` (m: a number, or one per pair, shaped as
+    the leading axes).
     """
     k = separation.shape[-1]
     lead = np.broadcast_shapes(normal.shape[:-1], points.shape[:-2], separation.shape[:-1])
     normal = np.broadcast_to(normal, lead + (3,))
     points = np.broadcast_to(points, lead + (k, 3))
     separation = np.broadcast_to(separation, lead + (k,))
-    valid = (separation < margin) & np.isfinite(separation)
+    valid = (separation < np.asarray(margin)[..., None]) & np.isfinite(separation)
     if exists is not None:
         valid &= np.broadcast_to(exists, lead + (k,))
     point = np.zeros(lead + (MAX_POINTS, 3))

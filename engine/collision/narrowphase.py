@@ -6,8 +6,9 @@ Every pair function has the signature
 
 with positions (W, P, 3) in metres, unit quaternions (W, P, 4) in (w, x, y, z)
 order, shape parameters (P, 3) as in :mod:`engine.shapes`, and ``margin``
-the speculative distance in metres (points with separation < margin are
-valid). The normal points from shape a to shape b. The canonical order of
+the speculative distance in metres, a number or one per pair (W, P) (points
+with separation < margin are valid; the box pair keeps its four points among
+them). The normal points from shape a to shape b. The canonical order of
 shape types is plane, sphere, capsule, box; :func:`collide` swaps arguments
 (and flips the normal) for the other order.
 
@@ -61,7 +62,7 @@ def pair_function(type_a: int, type_b: int):
     return PAIR_FUNCTIONS[key], swapped
 
 
-def collide(type_a, type_b, pos_a, quat_a, params_a, pos_b, quat_b, params_b, margin: float) -> Manifold:
+def collide(type_a, type_b, pos_a, quat_a, params_a, pos_b, quat_b, params_b, margin) -> Manifold:
     """Contact manifold of P pairs whose a shapes are all ``type_a`` and b shapes ``type_b``.
 
     pos (W, P, 3) m, quat (W, P, 4), params (P, 3); margin in m. The normal

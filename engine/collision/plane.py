@@ -21,7 +21,7 @@ CORNER_SIGNS = np.array([[-1, -1, -1], [-1, -1, 1], [-1, 1, -1], [-1, 1, 1],
                          [1, -1, -1], [1, -1, 1], [1, 1, -1], [1, 1, 1]], dtype=float)
 
 
-def plane_sphere(pos_a, quat_a, params_a, pos_b, quat_b, params_b, margin: float) -> Manifold:
+def plane_sphere(pos_a, quat_a, params_a, pos_b, quat_b, params_b, margin) -> Manifold:
     """Plane a, sphere b: one point (slot 0) below the sphere centre."""
     n = local_z(quat_a)
     r = params_b[..., 0]
@@ -30,7 +30,7 @@ def plane_sphere(pos_a, quat_a, params_a, pos_b, quat_b, params_b, margin: float
     return assemble(n, point[..., None, :], sep[..., None], None, margin)
 
 
-def plane_capsule(pos_a, quat_a, params_a, pos_b, quat_b, params_b, margin: float) -> Manifold:
+def plane_capsule(pos_a, quat_a, params_a, pos_b, quat_b, params_b, margin) -> Manifold:
     """Plane a, capsule b: the two segment ends (slot 0: local -z end, slot 1: +z end)."""
     n = local_z(quat_a)
     r = params_b[..., 0, None]
@@ -43,7 +43,7 @@ def plane_capsule(pos_a, quat_a, params_a, pos_b, quat_b, params_b, margin: floa
     return assemble(n, point, sep, None, margin)
 
 
-def plane_box(pos_a, quat_a, params_a, pos_b, quat_b, params_b, margin: float) -> Manifold:
+def plane_box(pos_a, quat_a, params_a, pos_b, quat_b, params_b, margin) -> Manifold:
     """Plane a, box b: the 4 deepest of the 8 corners.
 
     The chosen corners sit in the slots in increasing corner index (see

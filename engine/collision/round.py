@@ -34,7 +34,7 @@ def _round_contact(ca, ra, cb, rb, fallback):
     return n, 0.5 * (surface_a + surface_b), sep
 
 
-def sphere_sphere(pos_a, quat_a, params_a, pos_b, quat_b, params_b, margin: float) -> Manifold:
+def sphere_sphere(pos_a, quat_a, params_a, pos_b, quat_b, params_b, margin) -> Manifold:
     """Sphere a, sphere b: one point; coincident centres use the normal +z."""
     ra = np.broadcast_to(params_a[..., 0], pos_a.shape[:-1])
     rb = np.broadcast_to(params_b[..., 0], pos_b.shape[:-1])
@@ -42,7 +42,7 @@ def sphere_sphere(pos_a, quat_a, params_a, pos_b, quat_b, params_b, margin: floa
     return assemble(n, point[..., None, :], sep[..., None], None, margin)
 
 
-def sphere_capsule(pos_a, quat_a, params_a, pos_b, quat_b, params_b, margin: float) -> Manifold:
+def sphere_capsule(pos_a, quat_a, params_a, pos_b, quat_b, params_b, margin) -> Manifold:
     """Sphere a, capsule b: one point, from the sphere centre's closest point on
     the capsule segment. A centre on the axis uses a normal perpendicular to it."""
     ra = params_a[..., 0]
@@ -55,7 +55,7 @@ def sphere_capsule(pos_a, quat_a, params_a, pos_b, quat_b, params_b, margin: flo
     return assemble(n, point[..., None, :], sep[..., None], None, margin)
 
 
-def capsule_capsule(pos_a, quat_a, params_a, pos_b, quat_b, params_b, margin: float) -> Manifold:
+def capsule_capsule(pos_a, quat_a, params_a, pos_b, quat_b, params_b, margin) -> Manifold:
     """Capsule a, capsule b: one point, or two for (nearly) parallel capsules.
 
     Closest points of the two segments (Ericson 5.1.9) give the normal. When
