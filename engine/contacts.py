@@ -115,8 +115,9 @@ class ContactSet:
             return
         a, b = self.pair_a[p_idx], self.pair_b[p_idx]
         pos, quat = state.position, state.orientation
-        # Each pair's own margin: with one margin for all (the largest), a box
-        # pair's choice of its 4 points depended on the other worlds' speeds.
+        # Each pair's own margin (the narrow phase keeps the points within it):
+        # with one margin for all (the largest), a box pair's choice of its 4
+        # points depended on the other worlds' speeds.
         margin_row = s.speculative_distance + (reach[w_idx, a] + reach[w_idx, b])
         normal = np.empty((w_idx.size, 3))
         point = np.empty((w_idx.size, MAX_POINTS, 3))
@@ -133,7 +134,6 @@ class ContactSet:
             m = fn(pos[wa, ra][None], quat[wa, ra][None], model.shape_params[ra],
                    pos[wa, rb][None], quat[wa, rb][None], model.shape_params[rb], margin_row[sl][None])
             normal[sl], point[sl], sep[sl], valid[sl] = m.normal[0], m.point[0], m.separation[0], m.valid[0]
-        valid &= sep < margin_row[:, None]
         keep = valid.any(axis=1)
         w_idx, p_idx, a, b = w_idx[keep], p_idx[keep], a[keep], b[keep]
         normal, point, sep, valid = normal[keep], point[keep], sep[keep], valid[keep]
