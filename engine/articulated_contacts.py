@@ -46,12 +46,19 @@ bodies, articulations closed by loops. Joint limits act after the tree solve (or
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from .contact_solver import _coulomb_scale, _separation
 from .math3d import cross, mat_vec
 
 COLUMN_BLOCK = 24  # contact columns per pass of the tree substitution in Z (8 points)
+
+
+def _max0(x: float) -> float:
+    """np.maximum(x, 0.0) of one float: x above 0, NaN kept, else +0.0 (as numpy gives for -0.0)."""
+    return x if x > 0.0 or x != x else 0.0
 
 
 class ArticulatedContacts:
@@ -212,42 +219,89 @@ class ArticulatedContacts:
         u = self._velocities(state)
         lam = self._gather(cr)
         start = lam.copy()
-        A, valid, n = self.A_columns, self.valid, self.normals
+        n = self.normals
         # For restitution: each point's closing speed and gap just before it first takes load.
         loaded = self._normal_columns(cr.max_lam_n[self.rows])[:, n] > 0
         v_close = self._normal_columns(cr.vn_close[self.rows])
         s_close = self._normal_columns(cr.s_close[self.rows])
+        sweep_columns = self._sweep_one_world if self.W == 1 else self._sweep_batch
         for sweep in range(self.sweeps):
             # A column's impulse changes only at its own update, so the terms
             # read from the sweep's start (the impulse term, the restitution
-            # record) are taken out of the loop; u_before: each normal
-            # column's velocity at its update.
+            # record) are taken out of the loop.
             sweep_start = start if sweep == 0 else lam.copy()
             isc_lam = None if isc is None else isc * sweep_start
-            u_before = np.empty(u.shape)
-            for i in n:
-                ui = u_before[:, i] = u[:, i]
-                d = gain[:, i] * (ui + bias[:, i])
-                if isc_lam is not None:
-                    d = d - isc_lam[:, i]
-                new = np.where(valid[:, i], np.maximum(sweep_start[:, i] + d, 0.0), 0.0)
-                u += A[:, i] * (new - sweep_start[:, i])[:, None]
-                lam[:, i] = new
+            u_before = sweep_columns(u, lam, sweep_start, gain, bias, isc_lam)
             first = ~loaded & (lam[:, n] > 0)
             v_close[:, n] = np.where(first, u_before[:, n], v_close[:, n])
             s_close[:, n] = np.where(first, sep[:, n], s_close[:, n])
             loaded |= first
-            for i in n:
-                t1 = lam[:, i + 1] - self.m[:, i + 1] * u[:, i + 1]
-                t2 = lam[:, i + 2] - self.m[:, i + 2] * u[:, i + 2]
-                scale = np.where(valid[:, i], _coulomb_scale(t1, t2, self.mu[:, i] * lam[:, i]), 0.0)
-                t1, t2 = t1 * scale, t2 * scale
-                u += A[:, i + 1] * (t1 - lam[:, i + 1])[:, None] + A[:, i + 2] * (t2 - lam[:, i + 2])[:, None]
-                lam[:, i + 1], lam[:, i + 2] = t1, t2
         cr.vn_close[self.pt_row, self.pt_p] = v_close[self.pt_w, self.pt_col]
         cr.s_close[self.pt_row, self.pt_p] = s_close[self.pt_w, self.pt_col]
         self._apply(state, lam - start)
         self._scatter(cr, lam)
+
+    def _sweep_batch(self, u, lam, sweep_start, gain, bias, isc_lam):
+        """One Gauss-Seidel sweep, the normal columns then the friction pairs,
+        updating the column velocities u and impulses lam (W, columns) in
+        place; returns each normal column's velocity at its update."""
+        A, valid = self.A_columns, self.valid
+        u_before = np.empty(u.shape)
+        for i in self.normals:
+            ui = u_before[:, i] = u[:, i]
+            d = gain[:, i] * (ui + bias[:, i])
+            if isc_lam is not None:
+                d = d - isc_lam[:, i]
+            new = np.where(valid[:, i], np.maximum(sweep_start[:, i] + d, 0.0), 0.0)
+            u += A[:, i] * (new - sweep_start[:, i])[:, None]
+            lam[:, i] = new
+        for i in self.normals:
+            t1 = lam[:, i + 1] - self.m[:, i + 1] * u[:, i + 1]
+            t2 = lam[:, i + 2] - self.m[:, i + 2] * u[:, i + 2]
+            scale = np.where(valid[:, i], _coulomb_scale(t1, t2, self.mu[:, i] * lam[:, i]), 0.0)
+            t1, t2 = t1 * scale, t2 * scale
+            u += A[:, i + 1] * (t1 - lam[:, i + 1])[:, None] + A[:, i + 2] * (t2 - lam[:, i + 2])[:, None]
+            lam[:, i + 1], lam[:, i + 2] = t1, t2
+        return u_before
+
+    def _sweep_one_world(self, u, lam, sweep_start, gain, bias, isc_lam):
+        """``_sweep_batch`` for a batch of one world: the same operations in
+        the same order, on Python floats (IEEE doubles rounded as numpy's
+        element-wise ones, no fused multiply-adds), with only the updates of
+        u by a column of A in numpy. numpy's per-call cost, paid by every
+        scalar of the batch loop, made the sweeps 30% of a single world's
+        step; a world stepped alone stays the same world in a batch bit for
+        bit (``test_batch_replays_bit_for_bit``)."""
+        A, valid, u0 = self.A_columns[0], self.valid[0].tolist(), u[0]
+        lam_ = lam[0].tolist()
+        start, g, bias = sweep_start[0].tolist(), gain[0].tolist(), bias[0].tolist()
+        isc_ = None if isc_lam is None else isc_lam[0].tolist()
+        m, mu = self.m[0].tolist(), self.mu[0].tolist()
+        normals = self.normals.tolist()
+        u_before = np.empty(u.shape)
+        ub = u_before[0]
+        for i in normals:
+            ui = ub[i] = u0.item(i)
+            d = g[i] * (ui + bias[i])
+            if isc_ is not None:
+                d = d - isc_[i]
+            new = _max0(start[i] + d) if valid[i] else 0.0
+            u0 += A[i] * (new - start[i])
+            lam_[i] = new
+        for i in normals:
+            j, k = i + 1, i + 2
+            t1 = lam_[j] - m[j] * u0.item(j)
+            t2 = lam_[k] - m[k] * u0.item(k)
+            limit = mu[i] * lam_[i]
+            mag = math.sqrt(t1 * t1 + t2 * t2)
+            scale = (limit / max(mag, 1e-30) if mag > limit else 1.0) if valid[i] else 0.0
+            t1, t2 = t1 * scale, t2 * scale
+            du = A[j] * (t1 - lam_[j])
+            du += A[k] * (t2 - lam_[k])
+            u0 += du
+            lam_[j], lam_[k] = t1, t2
+        lam[0] = lam_
+        return u_before
 
     def bounce(self, state, cr, bounce, target):
         """Restitution of the rows' points marked in ``bounce`` (rows of the
