@@ -216,7 +216,11 @@ class ArticulatedContacts:
             isc = np.where(open_, 0.0, soft.impulse_scale)
         else:
             bias, gain, isc = np.where(open_, sep / h, 0.0), -self.m, None
-        u = self._velocities(state)
+        # u + 0.0 has no -0.0 entries, and a sum of two numbers is -0.0 only
+        # if both are: so adding an exact zero change (A_i · 0) never changes
+        # u, and the sweeps skip the columns whose impulse did not change (95%
+        # of a fallen ragdoll's).
+        u = self._velocities(state) + 0.0
         lam = self._gather(cr)
         start = lam.copy()
         n = self.normals
@@ -253,14 +257,18 @@ class ArticulatedContacts:
             if isc_lam is not None:
                 d = d - isc_lam[:, i]
             new = np.where(valid[:, i], np.maximum(sweep_start[:, i] + d, 0.0), 0.0)
-            u += A[:, i] * (new - sweep_start[:, i])[:, None]
+            change = new - sweep_start[:, i]
+            if change.any():
+                u += A[:, i] * change[:, None]
             lam[:, i] = new
         for i in self.normals:
             t1 = lam[:, i + 1] - self.m[:, i + 1] * u[:, i + 1]
             t2 = lam[:, i + 2] - self.m[:, i + 2] * u[:, i + 2]
             scale = np.where(valid[:, i], _coulomb_scale(t1, t2, self.mu[:, i] * lam[:, i]), 0.0)
             t1, t2 = t1 * scale, t2 * scale
-            u += A[:, i + 1] * (t1 - lam[:, i + 1])[:, None] + A[:, i + 2] * (t2 - lam[:, i + 2])[:, None]
+            c1, c2 = t1 - lam[:, i + 1], t2 - lam[:, i + 2]
+            if c1.any() or c2.any():
+                u += A[:, i + 1] * c1[:, None] + A[:, i + 2] * c2[:, None]
             lam[:, i + 1], lam[:, i + 2] = t1, t2
         return u_before
 
@@ -286,7 +294,9 @@ class ArticulatedContacts:
             if isc_ is not None:
                 d = d - isc_[i]
             new = _max0(start[i] + d) if valid[i] else 0.0
-            u0 += A[i] * (new - start[i])
+            change = new - start[i]
+            if change != 0.0:
+                u0 += A[i] * change
             lam_[i] = new
         for i in normals:
             j, k = i + 1, i + 2
@@ -296,9 +306,11 @@ class ArticulatedContacts:
             mag = math.sqrt(t1 * t1 + t2 * t2)
             scale = (limit / max(mag, 1e-30) if mag > limit else 1.0) if valid[i] else 0.0
             t1, t2 = t1 * scale, t2 * scale
-            du = A[j] * (t1 - lam_[j])
-            du += A[k] * (t2 - lam_[k])
-            u0 += du
+            c1, c2 = t1 - lam_[j], t2 - lam_[k]
+            if c1 != 0.0 or c2 != 0.0:
+                du = A[j] * c1
+                du += A[k] * c2
+                u0 += du
             lam_[j], lam_[k] = t1, t2
         lam[0] = lam_
         return u_before
