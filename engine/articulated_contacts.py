@@ -24,7 +24,10 @@ the joints in the metric:
   columns then the friction pairs, the same
   soft normal rows and Coulomb disc as ``contact_solver``), then the
   velocities change by Z Δλ at once: the joints stay satisfied at velocity
-  level, with no joint error for the joint solve to hand back.
+  level, with no joint error for the joint solve to hand back. The sweeps
+  are sequential by nature (one Python iteration per column, vectorised over
+  the worlds); a batch of one world runs them on Python floats, the same
+  operations in the same order, as numpy's cost per call would dominate.
 
 Z and A are computed once per step at the step's start positions, as the
 contact rows keep their lever arms for the step. There are three columns
@@ -58,7 +61,7 @@ COLUMN_BLOCK = 24  # contact columns per pass of the tree substitution in Z (8 p
 
 def _max0(x: float) -> float:
     """np.maximum(x, 0.0) of one float: x above 0, NaN kept, else +0.0 (as numpy gives for -0.0)."""
-    return x if x > 0.0 or x != x else 0.0
+    return x if x > 0.0 or math.isnan(x) else 0.0
 
 
 class ArticulatedContacts:
@@ -144,6 +147,11 @@ class ArticulatedContacts:
         self.mu[pw, self.pt_col] = cr.mu[self.pt_row, pi]
         self.normals = np.arange(0, C, 3)  # every normal column is some world's point
         self.sweeps = model.settings.articulated_contact_sweeps
+        # The sweeps skip unchanged columns only while A is finite (see solve).
+        self.skip_unchanged = bool(np.isfinite(self.A_columns).all())
+        if W == 1:  # the step's constants of _sweep_one_world, as Python floats
+            self._one_world_constants = (self.valid[0].tolist(), self.m[0].tolist(), self.mu[0].tolist(),
+                                         self.normals.tolist())
 
     # ------------------------------------------------------------------ impulses
     def _gather(self, cr):
@@ -217,9 +225,9 @@ class ArticulatedContacts:
         else:
             bias, gain, isc = np.where(open_, sep / h, 0.0), -self.m, None
         # u + 0.0 has no -0.0 entries, and a sum of two numbers is -0.0 only
-        # if both are: so adding an exact zero change (A_i · 0) never changes
-        # u, and the sweeps skip the columns whose impulse did not change (95%
-        # of a fallen ragdoll's).
+        # if both are: so while A is finite, adding an exact zero change
+        # (A_i · 0) never changes u, and the sweeps skip the columns whose
+        # impulse did not change (95% of a fallen ragdoll's updates).
         u = self._velocities(state) + 0.0
         lam = self._gather(cr)
         start = lam.copy()
@@ -232,7 +240,7 @@ class ArticulatedContacts:
         for sweep in range(self.sweeps):
             # A column's impulse changes only at its own update, so the terms
             # read from the sweep's start (the impulse term, the restitution
-            # record) are taken out of the loop.
+            # record) are taken out of the sweep's loop over the columns.
             sweep_start = start if sweep == 0 else lam.copy()
             isc_lam = None if isc is None else isc * sweep_start
             u_before = sweep_columns(u, lam, sweep_start, gain, bias, isc_lam)
@@ -248,8 +256,10 @@ class ArticulatedContacts:
     def _sweep_batch(self, u, lam, sweep_start, gain, bias, isc_lam):
         """One Gauss-Seidel sweep, the normal columns then the friction pairs,
         updating the column velocities u and impulses lam (W, columns) in
-        place; returns each normal column's velocity at its update."""
-        A, valid = self.A_columns, self.valid
+        place; returns each normal column's velocity at its update. u holds
+        no -0.0 (``solve``), so a column whose impulse changed in no world is
+        skipped (when A is finite: inf · 0 is NaN, which must reach u)."""
+        A, valid, skip = self.A_columns, self.valid, self.skip_unchanged
         u_before = np.empty(u.shape)
         for i in self.normals:
             ui = u_before[:, i] = u[:, i]
@@ -258,7 +268,7 @@ class ArticulatedContacts:
                 d = d - isc_lam[:, i]
             new = np.where(valid[:, i], np.maximum(sweep_start[:, i] + d, 0.0), 0.0)
             change = new - sweep_start[:, i]
-            if change.any():
+            if not skip or change.any():
                 u += A[:, i] * change[:, None]
             lam[:, i] = new
         for i in self.normals:
@@ -267,7 +277,7 @@ class ArticulatedContacts:
             scale = np.where(valid[:, i], _coulomb_scale(t1, t2, self.mu[:, i] * lam[:, i]), 0.0)
             t1, t2 = t1 * scale, t2 * scale
             c1, c2 = t1 - lam[:, i + 1], t2 - lam[:, i + 2]
-            if c1.any() or c2.any():
+            if not skip or c1.any() or c2.any():
                 u += A[:, i + 1] * c1[:, None] + A[:, i + 2] * c2[:, None]
             lam[:, i + 1], lam[:, i + 2] = t1, t2
         return u_before
@@ -278,41 +288,41 @@ class ArticulatedContacts:
         element-wise ones, no fused multiply-adds), with only the updates of
         u by a column of A in numpy. numpy's per-call cost, paid by every
         scalar of the batch loop, made the sweeps 30% of a single world's
-        step; a world stepped alone stays the same world in a batch bit for
-        bit (``test_batch_replays_bit_for_bit``)."""
-        A, valid, u0 = self.A_columns[0], self.valid[0].tolist(), u[0]
-        lam_ = lam[0].tolist()
-        start, g, bias = sweep_start[0].tolist(), gain[0].tolist(), bias[0].tolist()
-        isc_ = None if isc_lam is None else isc_lam[0].tolist()
-        m, mu = self.m[0].tolist(), self.mu[0].tolist()
-        normals = self.normals.tolist()
+        step. A column is skipped when its own impulse did not change, where
+        the batch skips it only if none changed: the same u, as adding an
+        exact zero leaves it as it is (u holds no -0.0, A is finite). So a
+        world stepped alone stays the same world in a batch bit for bit
+        (``test_batch_replays_bit_for_bit``)."""
+        A, u0, skip = self.A_columns[0], u[0], self.skip_unchanged
+        valid, m, mu, normals = self._one_world_constants
+        lam_l, start_l = lam[0].tolist(), sweep_start[0].tolist()
+        gain_l, bias_l = gain[0].tolist(), bias[0].tolist()
+        isc_l = None if isc_lam is None else isc_lam[0].tolist()
         u_before = np.empty(u.shape)
         ub = u_before[0]
         for i in normals:
             ui = ub[i] = u0.item(i)
-            d = g[i] * (ui + bias[i])
-            if isc_ is not None:
-                d = d - isc_[i]
-            new = _max0(start[i] + d) if valid[i] else 0.0
-            change = new - start[i]
-            if change != 0.0:
+            d = gain_l[i] * (ui + bias_l[i])
+            if isc_l is not None:
+                d = d - isc_l[i]
+            new = _max0(start_l[i] + d) if valid[i] else 0.0
+            change = new - start_l[i]
+            if not skip or change != 0.0:
                 u0 += A[i] * change
-            lam_[i] = new
+            lam_l[i] = new
         for i in normals:
             j, k = i + 1, i + 2
-            t1 = lam_[j] - m[j] * u0.item(j)
-            t2 = lam_[k] - m[k] * u0.item(k)
-            limit = mu[i] * lam_[i]
+            t1 = lam_l[j] - m[j] * u0.item(j)
+            t2 = lam_l[k] - m[k] * u0.item(k)
+            limit = mu[i] * lam_l[i]
             mag = math.sqrt(t1 * t1 + t2 * t2)
             scale = (limit / max(mag, 1e-30) if mag > limit else 1.0) if valid[i] else 0.0
             t1, t2 = t1 * scale, t2 * scale
-            c1, c2 = t1 - lam_[j], t2 - lam_[k]
-            if c1 != 0.0 or c2 != 0.0:
-                du = A[j] * c1
-                du += A[k] * c2
-                u0 += du
-            lam_[j], lam_[k] = t1, t2
-        lam[0] = lam_
+            c1, c2 = t1 - lam_l[j], t2 - lam_l[k]
+            if not skip or c1 != 0.0 or c2 != 0.0:
+                u0 += A[j] * c1 + A[k] * c2
+            lam_l[j], lam_l[k] = t1, t2
+        lam[0] = lam_l
         return u_before
 
     def bounce(self, state, cr, bounce, target):

@@ -137,6 +137,58 @@ def test_batch_replays_bit_for_bit():
         assert np.array_equal(alone.arrays[key][0], runs[0].arrays[key][2]), key
 
 
+def _sweeps(A, u, lam, gain, bias, isc_lam, one_world):
+    """One sweep of ArticulatedContacts on given arrays (W, C, C) and (W, C),
+    by the batch path or (W = 1) the Python-float path; returns u, lam, u_before."""
+    W, C = u.shape
+    ac = object.__new__(ArticulatedContacts)
+    ac.A_columns, ac.valid, ac.normals = A, np.ones((W, C), dtype=bool), np.arange(0, C, 3)
+    ac.m, ac.mu = np.where(np.isfinite(gain), -gain, 0.0), np.full((W, C), 0.6)
+    ac.skip_unchanged = bool(np.isfinite(A).all())
+    ac._one_world_constants = (ac.valid[0].tolist(), ac.m[0].tolist(), ac.mu[0].tolist(), ac.normals.tolist())
+    u, lam = u + 0.0, lam.copy()
+    sweep = ac._sweep_one_world if one_world else ac._sweep_batch
+    u_before = sweep(u, lam, lam.copy(), gain, bias, isc_lam)
+    return u, lam, u_before
+
+
+def test_a_world_alone_sweeps_as_in_a_batch_bit_for_bit_even_with_non_finite_A():
+    """The Python-float sweep of a batch of one world against the numpy sweep
+    of the same world among others: the same u, impulses and normal
+    velocities, bit for bit (zero signs included), over random columns with
+    unchanged (separated) points, and with an infinite entry of A in a
+    column whose impulse does not change: inf · 0 must still reach u (NaN),
+    alone and in the batch, not be skipped away alone."""
+    rng = np.random.default_rng(5)
+    overflowed = 0
+    for trial in range(40):
+        W, C = 3, 3 * int(rng.integers(1, 8))
+        R = rng.normal(size=(W, C, C))
+        A = np.einsum("wij,wkj->wik", R, R) / C + np.eye(C)
+        u = rng.normal(size=(W, C)) * rng.integers(0, 2, size=(W, C))  # exact zeros too
+        lam = np.abs(rng.normal(size=(W, C))) * rng.integers(0, 2, size=(W, C))
+        gain = -1.0 / np.einsum("wcc->wc", A)
+        bias = rng.normal(size=(W, C)) * 0.3
+        bias[:, ::3] = np.where(rng.random((W, C // 3)) < 0.4, 5.0, bias[:, ::3])  # separating: λ stays 0
+        lam[:, ::3] = np.where(bias[:, ::3] == 5.0, 0.0, lam[:, ::3])
+        isc_lam = None if trial % 2 else 0.1 * lam
+        if trial % 5 == 4:  # an overflowed entry in world 0's column of a separated point
+            sep = np.flatnonzero(bias[0, ::3] == 5.0)
+            if sep.size:
+                A[0, 3 * sep[0], 0] = np.inf
+        with np.errstate(invalid="ignore"):
+            u_b, lam_b, before_b = _sweeps(A, u, lam, gain, bias, isc_lam, one_world=False)
+            u_a, lam_a, before_a = _sweeps(A[:1], u[:1], lam[:1], gain[:1], bias[:1],
+                                           None if isc_lam is None else isc_lam[:1], one_world=True)
+        assert u_a[0].tobytes() == u_b[0].tobytes()
+        assert lam_a[0].tobytes() == lam_b[0].tobytes()
+        assert before_a[0, ::3].tobytes() == before_b[0, ::3].tobytes()  # read at the normal columns only
+        if not np.isfinite(A[0]).all():
+            overflowed += 1
+            assert np.isnan(u_a[0]).any() and np.isnan(u_b[0]).any()
+    assert overflowed >= 3
+
+
 def test_articulations_closed_by_loops_keep_body_rows_and_the_others_do_not():
     """A ring of three balls on ball joints (a loop, solved with the tree) and
     a chain of two, both resting on the ground, at ``engine.CLOSED_JOINTS``:
