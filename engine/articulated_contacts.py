@@ -150,8 +150,7 @@ class ArticulatedContacts:
         # The sweeps skip unchanged columns only while A is finite (see solve).
         self.skip_unchanged = bool(np.isfinite(self.A_columns).all())
         if W == 1:  # the step's constants of _sweep_one_world, as Python floats
-            self._one_world_constants = (self.valid[0].tolist(), self.m[0].tolist(), self.mu[0].tolist(),
-                                         self.normals.tolist())
+            self._one_world_constants = (self.m[0].tolist(), self.mu[0].tolist(), self.normals.tolist())
 
     # ------------------------------------------------------------------ impulses
     def _gather(self, cr):
@@ -292,9 +291,10 @@ class ArticulatedContacts:
         the batch skips it only if none changed: the same u, as adding an
         exact zero leaves it as it is (u holds no -0.0, A is finite). So a
         world stepped alone stays the same world in a batch bit for bit
-        (``test_batch_replays_bit_for_bit``)."""
+        (``test_batch_replays_bit_for_bit``). One world has no padding: every
+        column is a valid point's, so the batch's masks are left out."""
         A, u0, skip = self.A_columns[0], u[0], self.skip_unchanged
-        valid, m, mu, normals = self._one_world_constants
+        m, mu, normals = self._one_world_constants
         lam_l, start_l = lam[0].tolist(), sweep_start[0].tolist()
         gain_l, bias_l = gain[0].tolist(), bias[0].tolist()
         isc_l = None if isc_lam is None else isc_lam[0].tolist()
@@ -305,7 +305,7 @@ class ArticulatedContacts:
             d = gain_l[i] * (ui + bias_l[i])
             if isc_l is not None:
                 d = d - isc_l[i]
-            new = _max0(start_l[i] + d) if valid[i] else 0.0
+            new = _max0(start_l[i] + d)
             change = new - start_l[i]
             if not skip or change != 0.0:
                 u0 += A[i] * change
@@ -316,7 +316,7 @@ class ArticulatedContacts:
             t2 = lam_l[k] - m[k] * u0.item(k)
             limit = mu[i] * lam_l[i]
             mag = math.sqrt(t1 * t1 + t2 * t2)
-            scale = (limit / max(mag, 1e-30) if mag > limit else 1.0) if valid[i] else 0.0
+            scale = limit / max(mag, 1e-30) if mag > limit else 1.0
             t1, t2 = t1 * scale, t2 * scale
             c1, c2 = t1 - lam_l[j], t2 - lam_l[k]
             if not skip or c1 != 0.0 or c2 != 0.0:

@@ -145,7 +145,7 @@ def _sweeps(A, u, lam, gain, bias, isc_lam, one_world):
     ac.A_columns, ac.valid, ac.normals = A, np.ones((W, C), dtype=bool), np.arange(0, C, 3)
     ac.m, ac.mu = np.where(np.isfinite(gain), -gain, 0.0), np.full((W, C), 0.6)
     ac.skip_unchanged = bool(np.isfinite(A).all())
-    ac._one_world_constants = (ac.valid[0].tolist(), ac.m[0].tolist(), ac.mu[0].tolist(), ac.normals.tolist())
+    ac._one_world_constants = (ac.m[0].tolist(), ac.mu[0].tolist(), ac.normals.tolist())
     u, lam = u + 0.0, lam.copy()
     sweep = ac._sweep_one_world if one_world else ac._sweep_batch
     u_before = sweep(u, lam, lam.copy(), gain, bias, isc_lam)
