@@ -51,7 +51,6 @@ import numpy as np
 
 from .coloring import color_rows
 from .math3d import cross, dot, mat_vec, normalize, quat_rotate, quat_rotate_inv, world_inv_inertia
-from .shapes import CAPSULE, SPHERE
 from .soft import make_soft
 
 STICK_SPEED = 0.01  # m/s: below it a contact point uses static friction
@@ -107,30 +106,22 @@ class _Block:
         self.any_free = bool(self.free.any())
         self.ka, self.kb = cr.ka[rows], cr.kb[rows]
         self.dyn_a, self.dyn_b = cr.dyn_a[rows], cr.dyn_b[rows]
-        # For the current separation: body-local feature centres, start positions and separations.
-        self.ca, self.cb = cr.ca[rows], cr.cb[rows]
-        self.wca, self.wcb = cr.wca[rows], cr.wcb[rows]
+        # For the current separation: body-local lever arms, start positions and separations.
+        self.la, self.lb = cr.la[rows], cr.lb[rows]
         self.xa0, self.xb0 = cr.xa0[rows], cr.xb0[rows]
         self.sep0 = cr.sep0[rows]
 
 
-def _rounding_radius(model, body):
-    """Radius (R, 1) around the core feature of each body's shape: a sphere's
-    or capsule's radius, 0 for the others (m)."""
-    kind = model.shape_type[body]
-    return np.where((kind == SPHERE) | (kind == CAPSULE), model.shape_params[body, 0], 0.0)[:, None]
-
-
 def _separation(state, c):
     """Current separation (R, 4) of the rows of block ``c`` from their bodies'
-    displacement this step: s₀ + n·(Δ(x_b + R_b c_b) - Δ(x_a + R_a c_a)), c
-    the body-local core points of ``ContactRows``."""
+    displacement this step: s₀ + n·(Δ(x_b + r_b) - Δ(x_a + r_a))."""
     pa = state.position.reshape(-1, 3).take(c.ka, 0)
     pb = state.position.reshape(-1, 3).take(c.kb, 0)
     qa = state.orientation.reshape(-1, 4).take(c.ka, 0)
     qb = state.orientation.reshape(-1, 4).take(c.kb, 0)
-    d = (pb - c.xb0)[:, None] + quat_rotate(qb[:, None], c.cb) - c.wcb - (pa - c.xa0)[:, None] \
-        - quat_rotate(qa[:, None], c.ca) + c.wca
+    ra = quat_rotate(qa[:, None], c.la)
+    rb = quat_rotate(qb[:, None], c.lb)
+    d = (pb - c.xb0)[:, None] + rb - c.rb - (pa - c.xa0)[:, None] - ra + c.ra
     return c.sep0 + dot(d, c.n[:, None])
 
 
@@ -159,23 +150,7 @@ class ContactRows:
         self.ra, self.rb = ra, rb
         self.la = quat_rotate_inv(qa[:, None], ra)  # body-local lever arms
         self.lb = quat_rotate_inv(qb[:, None], rb)
-        # The points whose motion the separation follows (``_separation``):
-        # each side's core feature under the contact point, which lies midway
-        # between the two surfaces: a sphere's centre, the point of a
-        # capsule's axis, a box's own corner or face point. A point on a
-        # sphere's surface turns away from the contact as the body spins
-        # while the sphere's lowest point stays where it is; the centre does
-        # not, so a sphere or capsule end against a plane keeps its exact
-        # separation however far it turns in the step (a forearm spun at 17
-        # m/s was tracked 2.4 cm deep while 11.1 cm deep: benchmarks.stability
-        # ragdoll_max_torque, step 1064). The normal speed at the centre is
-        # the one at the contact point (ω × r n has no normal part), so the
-        # rows' Jacobians keep the contact points.
         self.sep0 = np.where(valid, sep, 0.0)
-        half_gap = 0.5 * self.sep0[..., None] * normal[:, None]
-        self.wca = ra - half_gap - _rounding_radius(model, a)[..., None] * normal[:, None]  # world frame, at the start
-        self.wcb = rb + half_gap + _rounding_radius(model, b)[..., None] * normal[:, None]
-        self.ca, self.cb = quat_rotate_inv(qa[:, None], self.wca), quat_rotate_inv(qb[:, None], self.wcb)
         # World inverse inertias (step start), as in Box2D's prepare stage.
         self.ia = world_inv_inertia(qa, model.inv_inertia[a])[:, None]
         self.ib = world_inv_inertia(qb, model.inv_inertia[b])[:, None]

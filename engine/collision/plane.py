@@ -43,25 +43,12 @@ def plane_capsule(pos_a, quat_a, params_a, pos_b, quat_b, params_b, margin) -> M
     return assemble(n, point, sep, None, margin)
 
 
-#: FACE_CORNERS[j, s]: the corners (increasing index) of the box face on axis j, side s (0: -, 1: +).
-FACE_CORNERS = np.array([[np.flatnonzero(CORNER_SIGNS[:, j] == sign) for sign in (-1.0, 1.0)] for j in range(3)])
-
-
 def plane_box(pos_a, quat_a, params_a, pos_b, quat_b, params_b, margin) -> Manifold:
-    """Plane a, box b: the 4 corners of the face turned most towards the plane.
-
-    That face holds the deepest corner, and it is the face that lands when a
-    tilted box falls flat: a foot on its heel keeps its toe corners in the
-    manifold, so the toe is tracked (``contact_solver``) as the foot slaps
-    down within the step. The 4 deepest corners of a foot tilted by more
-    than 16° were its heel's 4, and a toe coming down in the step went 6.4
-    cm into the ground before the next step saw it (benchmarks.stability
-    ragdoll_max_torque, 2 worlds, step 84).
+    """Plane a, box b: the 4 deepest of the 8 corners.
 
     The chosen corners sit in the slots in increasing corner index (see
     ``CORNER_SIGNS``), so a box resting on a face keeps each corner in the same
-    slot. A box lying flat gives 4 valid points, on an edge 2 or more, on a
-    corner 1 or more (those within the margin).
+    slot. A box lying flat gives 4 valid points, on an edge 2, on a corner 1.
     """
     n = local_z(quat_a)
     m = quat_to_matrix(quat_b)  # columns: box axes in world
@@ -77,11 +64,8 @@ def plane_box(pos_a, quat_a, params_a, pos_b, quat_b, params_b, margin) -> Manif
         corners.append(pos_b + sx * offs[0] + sy * offs[1] + sz * offs[2])
     heights = np.stack(heights, axis=-1)  # (W, P, 8)
     corners = np.stack(corners, axis=-2)  # (W, P, 8, 3)
-    facing = np.stack([dot(m[..., :, j], n) for j in range(3)], axis=-1)  # (W, P, 3): each axis along n
-    axis = np.argmax(np.abs(facing), axis=-1)
-    side = (np.take_along_axis(facing, axis[..., None], axis=-1)[..., 0] < 0).astype(np.int64)  # + face if it faces down
-    face = FACE_CORNERS[axis, side]  # (W, P, 4)
-    sep = np.take_along_axis(heights, face, axis=-1)
-    pts = np.take_along_axis(corners, face[..., None], axis=-2)
+    deepest = np.sort(np.argsort(heights, axis=-1, kind="stable")[..., :4], axis=-1)
+    sep = np.take_along_axis(heights, deepest, axis=-1)
+    pts = np.take_along_axis(corners, deepest[..., None], axis=-2)
     point = pts - n[..., None, :] * (0.5 * sep)[..., None]
     return assemble(n, point, sep, None, margin)

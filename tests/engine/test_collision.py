@@ -139,25 +139,6 @@ def test_box_on_edge_gives_two_points_and_on_corner_one():
     np.testing.assert_allclose(pts[0], (0, 0, -0.002), atol=TOL)
 
 
-def test_box_tilted_on_its_heel_keeps_the_face_turned_to_the_plane():
-    # A foot-sized box tilted 25° toe up rests on its heel edge. Its 4 points
-    # are the corners of its bottom face, the one that lands as it falls flat
-    # (the 4 deepest corners would be its heel's: 2 bottom, 2 top, as the top
-    # heel corners are 7 cm up and the toe corners 11 cm).
-    h = np.array([0.13, 0.05, 0.035])
-    tilt = math.radians(25.0)
-    q = rot((0, 1, 0), -tilt)  # toe (+x) up
-    centre = np.array([0.0, 0.0, h[0] * math.sin(tilt) + h[2] * math.cos(tilt) - 0.001])
-    m = call(plane_box, (0, 0, 0), IDENTITY, (), centre, q, h, margin=0.5)
-    pts, sep = valid_points(m)
-    assert len(sep) == 4
-    corners = pts + np.array([0.0, 0.0, 0.5]) * sep[:, None]  # the box's own corners (points lie midway)
-    local = quat_rotate_inv(q, corners - centre)
-    np.testing.assert_allclose(local[:, 2], -h[2], atol=TOL)  # all on the bottom face
-    heel_down, toe_up = -0.001, -0.001 + 2 * h[0] * math.sin(tilt)
-    np.testing.assert_allclose(np.sort(sep), [heel_down, heel_down, toe_up, toe_up], atol=TOL)
-
-
 def test_box_on_plane_slots_stable_under_small_rocking():
     # A box rocking slightly keeps each bottom corner in the same slot.
     h = (0.3, 0.2, 0.1)

@@ -5,7 +5,6 @@ fast bodies, and the humanoid landing."""
 
 from __future__ import annotations
 
-import itertools
 import math
 
 import numpy as np
@@ -391,55 +390,6 @@ def test_capsule_at_100_m_per_s_does_not_pass_through(target):
     # The capsule's centre never gets below the surface (it would need to pass
     # by its radius plus its tilted half-length to tunnel).
     assert lowest > floor
-
-
-def _feature_heights(shape, x, q):
-    """Exact separations from the plane z = 0 of a body's contact features: a
-    sphere's lowest point, each capsule end's (slot order: -z end, +z end),
-    every box corner."""
-    axes = e.math3d.quat_rotate(q, np.eye(3))  # rows: the body's axes in the world
-    if isinstance(shape, e.Sphere):
-        return np.array([x[2] - shape.radius])
-    if isinstance(shape, e.Capsule):
-        return np.array([x[2] + sign * shape.half_length * axes[2, 2] - shape.radius for sign in (-1.0, 1.0)])
-    signs = np.array(list(itertools.product((-1.0, 1.0), repeat=3)))
-    return x[2] + (signs * shape.half_extents) @ axes[:, 2]
-
-
-@pytest.mark.parametrize("shape", [e.Sphere(0.1), e.Capsule(0.05, 0.2), e.Box((0.13, 0.05, 0.035))],
-                         ids=["sphere", "capsule", "box"])
-def test_separation_within_the_step_follows_a_turned_body_exactly(shape):
-    """The rows' separation within a step (the step's detection moved by the
-    bodies' displacement since) against a plane is each point's exact
-    height: a sphere's or capsule end's centre height minus the radius, a
-    box corner's height, however far the body turns. (Followed as a point on
-    the surface, a capsule spun 90° about its axis read its end 5 cm, its
-    radius, too high.)"""
-    q0 = e.math3d.quat_from_axis_angle(np.array([0.0, 1.0, 0.0]), 0.4)
-    x0 = np.array([0.0, 0.0, 0.0])
-    x0[2] = 0.005 - _feature_heights(shape, x0, q0).min()  # lowest feature 5 mm up
-    b = e.SceneBuilder(gravity=None)
-    b.add_ground()
-    b.add_body("b", shape, mass=1.0, position=x0, orientation=q0)
-    model = b.build()
-    state = model.initial_state(1)
-    model.contacts.begin_step(model, state, model.settings.dt / model.settings.substeps)
-    rows = model.contacts.rows
-    valid = rows.valid[0]
-    assert valid.any()
-    for axis, angle, shift, own in (((0.0, 0.0, 1.0), 1.57, (0.0, 0.0, 0.0), True),  # spun about its own z
-                                    ((1.0, 0.0, 0.0), 0.3, (0.02, -0.01, -0.05), False),
-                                    ((0.3, 1.0, 0.2), -0.9, (0.0, 0.0, 0.04), False)):
-        turn = e.math3d.quat_from_axis_angle(np.array(axis) / np.linalg.norm(axis), angle)
-        q = e.math3d.quat_mul(q0, turn) if own else e.math3d.quat_mul(turn, q0)
-        x = x0 + np.array(shift)
-        state.orientation[0, 1], state.position[0, 1] = q, x
-        sep = rows.separation(state)[0]
-        exact = _feature_heights(shape, x, q)
-        if isinstance(shape, e.Box):  # each tracked point is one of the corners, moved with the box
-            assert all(np.abs(exact - v).min() < 1e-12 for v in sep[valid])
-        else:
-            np.testing.assert_allclose(sep[valid], exact[valid[:exact.size]], rtol=0, atol=1e-12)
 
 
 def test_humanoid_dropped_from_1_m_settles_without_sinking_or_jitter():

@@ -630,9 +630,8 @@ def test_inverse_or_nan_marks_only_the_singular_matrices():
 def test_a_diverging_ragdoll_is_reported_not_a_linalg_error():
     """The humanoid with soft joints (``engine.SOFT_JOINTS``) under random
     torques at dt 1/30 with 1 substep and no relax solve diverges (bodies
-    1e5 m apart by step 90, non-finite at step 156; 1e17 m by step 40 before
-    the contact rows followed their shapes' core points; the defaults' rigid
-    joints stay finite); a joint pivot then turns singular in floating point. The step reports that world as
+    1e17 m apart by step 40; the defaults' rigid joints stay finite); a joint pivot then
+    turns singular in floating point. The step reports that world as
     non-finite (SimulationError naming world and step), as for any other
     divergence, instead of stopping with numpy's LinAlgError; without the
     check the other world of the batch steps on unharmed."""
@@ -640,17 +639,17 @@ def test_a_diverging_ragdoll_is_reported_not_a_linalg_error():
     from engine import SOFT_JOINTS
 
     model = accuracy._ragdoll_model(Settings(dt=1 / 30, substeps=1, relax_iterations=0, **SOFT_JOINTS))
-    torques = accuracy._ragdoll_torques(model, 10.0)
+    torques = accuracy._ragdoll_torques(model, 3.0)
     per = round(accuracy.SAMPLE_DT * 30)
     s = model.initial_state(2)
     with pytest.raises(SimulationError) as info:
-        for k in range(300):
+        for k in range(90):
             motor = np.stack([torques[k // per], np.zeros(model.num_actuators)])
             step(model, s, Control(motor=motor))
     assert info.value.worlds == (0,)
     assert "world 0" in str(info.value)
     unchecked = model.with_settings(check_finite=False)
     s = unchecked.initial_state(2)
-    for k in range(k + 1):
+    for k in range(90):
         step(unchecked, s, Control(motor=np.stack([torques[k // per], np.zeros(model.num_actuators)])))
     assert s.nonfinite_worlds().tolist() == [0]

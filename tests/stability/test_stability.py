@@ -176,17 +176,10 @@ def test_rigid_limits_leave_a_random_drop_twitching():
 # ------------------------------------------------------------------ random maximum torques
 def test_max_torque_fast():
     """2 worlds of the standing ragdoll, every joint at ± its maximum torque,
-    90 steps: finite, no energy gain, joints within 1 cm. The 5 cm
-    penetration bound is missed as in the longer runs below: a foot pressed
-    down by its ankle limit sinks (the contacts' response does not know the
-    limits). It met the bound before 2026-12-05 by chance: over 32 worlds x
-    500 steps 25 worlds went deeper than 5 cm then, 10 since the rows follow
-    their shapes' core points and a box's landing face. At ``SOFT_JOINTS`` a
-    known miss: joints 4.0 cm (the post-stabilisation's slop; 6.6 cm
-    without), 9.0 cm deep."""
+    90 steps. At ``SOFT_JOINTS`` a known miss: joints 4.0 cm (the
+    post-stabilisation's slop; 6.6 cm without), 9.0 cm deep."""
     case = sc.ragdoll_max_torque(num_worlds=2)
-    run_and_check(case, 90 * case.dt, missed_bounds=["penetration"],
-                  known_miss="measured: penetration 5.3 cm > 5 cm at step 24 (a foot against its ankle limit)")
+    run_and_check(case, 90 * case.dt)
 
 
 @pytest.mark.slow
