@@ -114,6 +114,18 @@ class ArticulatedContacts:
         a, b, _, _, _, _, _, Ja, Jb, mask = tree.blocks(js, state, tree)
         factors = tree._factor(Ja, Jb, mask)
         self.Z_columns = np.empty((W, C, N * 6))
+        # A = J_c Z (W, C, C), stored by columns, each contiguous: A_columns[w, i]
+        # = A[w, :, i], the column velocities' change per unit impulse on column
+        # i (the sweeps read one column per update; A is symmetric only to
+        # rounding). Row r of J_c is J[r] on its body's six rows of Z, so
+        # A[r, i] = Σ_d J[r, d] Z[6 body_r + d, i], summed over d in order,
+        # element by element: a matrix product over the padded columns rounded
+        # differently with the batch's column count, and a world stepped alone
+        # left the batch's trajectory after 82 steps. Built block by block from
+        # each block's Z rows at the rows' bodies (one gather of 6-row slabs).
+        self.A_columns = np.empty((W, C, C))
+        worlds = np.arange(W)[:, None]
+        J_rows = self.J[..., None]
         for lo in range(0, C, COLUMN_BLOCK):
             hi = min(lo + COLUMN_BLOCK, C)
             sel = (col3 >= lo) & (col3 < hi)
@@ -124,21 +136,13 @@ class ArticulatedContacts:
             U[..., :3, :] -= F[..., :3, :] * model.inv_mass[:, None, None]
             U[..., 3:, :] -= np.matmul(tree.iinv, F[..., 3:, :])
             self.Z_columns[:, lo:hi] = U.reshape(W, N * 6, hi - lo).transpose(0, 2, 1)
+            Zr = U[worlds, self.body]  # (W, C, 6, block): Z's rows of each row's body
+            Zr *= J_rows
+            A = np.zeros((W, C, hi - lo))
+            for d in range(6):
+                A += Zr[:, :, d]
+            self.A_columns[:, lo:hi] = A.transpose(0, 2, 1)
         self.M, self.tree_bodies = tree.M, tree.t.bodies  # the metric of the joint solve, for _velocities
-        # A = J_c Z (W, C, C), stored by columns, each contiguous: A_columns[w, i]
-        # = A[w, :, i], the column velocities' change per unit impulse on column
-        # i (the sweeps read one column per update; A is symmetric only to
-        # rounding). Row r of J_c is J[r] on its body's six rows of Z, so
-        # A[r, i] = Σ_d J[r, d] Z[6 body_r + d, i], summed over d in order,
-        # element by element: a matrix product over the padded columns rounded
-        # differently with the batch's column count, and a world stepped alone
-        # left the batch's trajectory after 82 steps.
-        self.A_columns = np.zeros((W, C, C))
-        for d in range(6):
-            term = np.take_along_axis(self.Z_columns, np.broadcast_to((6 * self.body + d)[:, None, :], (W, C, C)), 2)
-            term *= self.J[:, None, :, d]
-            self.A_columns += term
-            del term
         diag = np.einsum("wcc->wc", self.A_columns)
         self.m = np.where(diag > 0, 1.0 / np.where(diag > 0, diag, 1.0), 0.0)  # effective masses
         self.valid = np.zeros((W, C), dtype=bool)
