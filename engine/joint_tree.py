@@ -301,6 +301,7 @@ class _TreeSolver(_Rows):
         self.geometric_weight = None  # per step: 1, or (W, tree joints) weights, or None
         self.loop_geometric_weight = None  # the same for the loop-closing rows solved with the tree
         self._factored = None  # (state, blocks, factors) of the current positions and metric (see solve)
+        self._limit_consts = None  # see _limit_constants
 
     def begin_step(self, js, model, state, h):
         """The bodies' metric M (W, tree bodies, 6, 6) at the state's
@@ -441,35 +442,31 @@ class _TreeSolver(_Rows):
         σ·λ >= 0 required, and which rows exist (W, nj, 3)."""
         idx = self.joints
         a, b = js.parent[idx], js.child[idx]
+        lo0, hi0, lo_finite, hi_finite, ball_col, exists_static = self._limit_constants(js)
         lam = state.joint_limit_impulse[:, idx]
         Jt, twist, Js, Cs = js.limit_geometry(state, idx)
         # Remove the warm-started limit impulse.
         L = (lam[..., 0:1] - lam[..., 1:2]) * Jt + lam[..., 2:3] * Js
-        np.add.at(state.angular_velocity, (slice(None), a), mat_vec(js._iinv[:, a], L))
-        np.add.at(state.angular_velocity, (slice(None), b), -mat_vec(js._iinv[:, b], L))
+        _scatter_add(state.angular_velocity, self.scatter_a, mat_vec(js._iinv[:, a], L))
+        _scatter_add(state.angular_velocity, self.scatter_b, -mat_vec(js._iinv[:, b], L))
         state.joint_limit_impulse[:, idx] = 0.0
-        lo, hi = js.lower[idx], js.upper[idx]
-        C_lo = np.where(np.isfinite(lo), twist - np.where(np.isfinite(lo), lo, 0.0), np.inf)
-        C_hi = np.where(np.isfinite(hi), np.where(np.isfinite(hi), hi, 0.0) - twist, np.inf)
+        C_lo = np.where(lo_finite, twist - lo0, np.inf)
+        C_hi = np.where(hi_finite, hi0 - twist, np.inf)
         # One twist row per joint: the bound the twist is heading for by the
         # substep's end (a light limb can cross the whole range in a substep).
         wrel = state.angular_velocity[:, b] - state.angular_velocity[:, a]
         ahead = h * dot(Jt, wrel)
         lower = C_lo + ahead <= C_hi - ahead
-        sigma_t = np.where(lower, 1.0, -1.0)
-        C_t = np.minimum(C_lo, C_hi)
         W, nj = twist.shape
         rows = np.zeros((W, nj, 3, 3))
         rows[..., 0, :] = Jt
-        rows[..., 1, :] = np.where((self.kind == BALL)[:, None], Js, 0.0)
-        exists = np.zeros((W, nj, 3), dtype=bool)
-        exists[..., 0] = np.broadcast_to(js.has_limit[idx], (W, nj)) & (self.kind != FIXED)
-        exists[..., 1] = np.broadcast_to(js.has_swing[idx], (W, nj))
-        exists &= (js._active(state, idx) > 0)[..., None]
+        rows[..., 1, :] = np.where(ball_col, Js, 0.0)
+        exists = exists_static & ~state.joint_broken.take(idx, 1)[..., None]
         sigma = np.ones((W, nj, 3))
-        sigma[..., 0] = sigma_t
-        C = np.stack((np.where(exists[..., 0], C_t, 0.0), np.where(exists[..., 1], Cs, 0.0), np.zeros((W, nj))), -1)
-        wrel = state.angular_velocity[:, b] - state.angular_velocity[:, a]
+        sigma[..., 0] = np.where(lower, 1.0, -1.0)
+        C = np.zeros((W, nj, 3))
+        C[..., 0] = np.where(exists[..., 0], np.minimum(C_lo, C_hi), 0.0)
+        C[..., 1] = np.where(exists[..., 1], Cs, 0.0)
         r = mat_vec(rows, wrel)
         # Speculative while open (C/h), rigid position bias when violated in
         # the biased solve, none in the relax solve.
@@ -477,6 +474,20 @@ class _TreeSolver(_Rows):
         r = r + sigma * bias
         r = np.where(exists, r, 0.0)
         return rows, r, sigma, exists, lower
+
+    def _limit_constants(self, js):
+        """Per tree joint, fixed at build: the twist bounds with infinite ones
+        as 0 (rad), which bounds are finite, the ball joints (as a column) and
+        which limit rows exist (twist, swing, none) for an unbroken joint."""
+        if self._limit_consts is None:
+            idx = self.joints
+            lo, hi = js.lower[idx], js.upper[idx]
+            exists = np.zeros((idx.size, 3), dtype=bool)
+            exists[:, 0] = js.has_limit[idx] & (self.kind != FIXED)
+            exists[:, 1] = js.has_swing[idx]
+            self._limit_consts = (np.where(np.isfinite(lo), lo, 0.0), np.where(np.isfinite(hi), hi, 0.0),
+                                  np.isfinite(lo), np.isfinite(hi), (self.kind == BALL)[:, None], exists)
+        return self._limit_consts
 
     def solve(self, js, model, state, bias_rate, mass_scale, impulse_scale, use_bias, h):
         if not self.limits:
