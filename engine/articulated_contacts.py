@@ -122,10 +122,11 @@ class ArticulatedContacts:
         # element by element: a matrix product over the padded columns rounded
         # differently with the batch's column count, and a world stepped alone
         # left the batch's trajectory after 82 steps. Built block by block from
-        # each block's Z rows at the rows' bodies (one gather of 6-row slabs).
+        # each block's Z rows at the points' bodies (one gather of 6-row slabs).
         self.A_columns = np.empty((W, C, C))
         worlds = np.arange(W)[:, None]
-        J_rows = self.J[..., None]
+        point_body = self.body[:, 0::3]  # the three columns of a point share its body
+        J_points = self.J.reshape(W, C // 3, 3, 6)
         for lo in range(0, C, COLUMN_BLOCK):
             hi = min(lo + COLUMN_BLOCK, C)
             sel = (col3 >= lo) & (col3 < hi)
@@ -136,12 +137,11 @@ class ArticulatedContacts:
             U[..., :3, :] -= F[..., :3, :] * model.inv_mass[:, None, None]
             U[..., 3:, :] -= np.matmul(tree.iinv, F[..., 3:, :])
             self.Z_columns[:, lo:hi] = U.reshape(W, N * 6, hi - lo).transpose(0, 2, 1)
-            Zr = U[worlds, self.body]  # (W, C, 6, block): Z's rows of each row's body
-            Zr *= J_rows
-            A = np.zeros((W, C, hi - lo))
+            Zp = U[worlds, point_body]  # (W, points, 6, block): Z's rows of each point's body
+            A = np.zeros((W, C // 3, 3, hi - lo))
             for d in range(6):
-                A += Zr[:, :, d]
-            self.A_columns[:, lo:hi] = A.transpose(0, 2, 1)
+                A += J_points[..., d, None] * Zp[:, :, None, d]
+            self.A_columns[:, lo:hi] = A.reshape(W, C, hi - lo).transpose(0, 2, 1)
         self.M, self.tree_bodies = tree.M, tree.t.bodies  # the metric of the joint solve, for _velocities
         diag = np.einsum("wcc->wc", self.A_columns)
         self.m = np.where(diag > 0, 1.0 / np.where(diag > 0, diag, 1.0), 0.0)  # effective masses
