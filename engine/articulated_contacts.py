@@ -264,6 +264,7 @@ class ArticulatedContacts:
         skipped (when A is finite: inf · 0 is NaN, which must reach u)."""
         A, valid, skip = self.A_columns, self.valid, self.skip_unchanged
         u_before = np.empty(u.shape)
+        du, du2 = np.empty(u.shape), np.empty(u.shape)  # products of a column of A, written in place
         for i in self.normals:
             ui = u_before[:, i] = u[:, i]
             d = gain[:, i] * (ui + bias[:, i])
@@ -272,7 +273,7 @@ class ArticulatedContacts:
             new = np.where(valid[:, i], np.maximum(sweep_start[:, i] + d, 0.0), 0.0)
             change = new - sweep_start[:, i]
             if not skip or change.any():
-                u += A[:, i] * change[:, None]
+                u += np.multiply(A[:, i], change[:, None], out=du)
             lam[:, i] = new
         for i in self.normals:
             t1 = lam[:, i + 1] - self.m[:, i + 1] * u[:, i + 1]
@@ -281,7 +282,9 @@ class ArticulatedContacts:
             t1, t2 = t1 * scale, t2 * scale
             c1, c2 = t1 - lam[:, i + 1], t2 - lam[:, i + 2]
             if not skip or c1.any() or c2.any():
-                u += A[:, i + 1] * c1[:, None] + A[:, i + 2] * c2[:, None]
+                np.multiply(A[:, i + 1], c1[:, None], out=du)
+                du += np.multiply(A[:, i + 2], c2[:, None], out=du2)
+                u += du
             lam[:, i + 1], lam[:, i + 2] = t1, t2
         return u_before
 
