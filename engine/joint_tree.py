@@ -25,6 +25,7 @@ import numpy as np
 from .joints import BALL, FIXED, HINGE
 from .math3d import (EX, EY, EZ, clamp_norm, cross, dot, inverse_or_nan, mat_vec, quat_conj, quat_mul, quat_rotate,
                      sym3_inverse, world_inv_inertia)
+from .scatter import Scatter, scatter_add
 
 
 # Entries of -[r]× = [[0, r_z, -r_y], [-r_z, 0, r_x], [r_y, -r_x, 0]] in the
@@ -69,43 +70,6 @@ def _in_limit_slots(on, lrows, lr, Ja, Jb, mask, r=None):
         if r is not None:
             r[..., 3 + k] = np.where(use, lr[..., k], r[..., 3 + k])
     return (Ja, Jb, mask) if r is None else (Ja, Jb, mask, r)
-
-
-#: Below this many elements of v per part, ``_scatter_add`` takes one
-#: np.add.at (about 1.5 µs + 7 ns an element) instead of one indexed add per
-#: part (about 3 µs a part): 3x faster on one world's 6x6 blocks, 2-3x slower
-#: on 32 worlds' (numpy 2.4, this machine).
-SCATTER_ADD_AT_PER_PART = 400
-
-
-class _Scatter:
-    """Positions 0..len-1 of ``targets`` split into parts whose targets are
-    unique, so that ``out[:, t[sel]] += v[:, sel]`` per part adds each
-    target's terms in position order, as np.add.at does: the same sums, the
-    same bits, whichever ``_scatter_add`` takes."""
-
-    def __init__(self, targets):
-        self.targets = np.asarray(targets)
-        parts, seen = [], []
-        for i, t in enumerate(self.targets.tolist()):
-            for k, used in enumerate(seen):
-                if t not in used:
-                    used.add(t)
-                    parts[k].append(i)
-                    break
-            else:
-                seen.append({t})
-                parts.append([i])
-        self.parts = [(np.array(sel), self.targets[sel]) for sel in parts]
-
-
-def _scatter_add(out, scatter, v):
-    """out[:, t[i]] += v[:, i] for every position i of ``scatter`` (a ``_Scatter``)."""
-    if v.size < SCATTER_ADD_AT_PER_PART * len(scatter.parts):
-        np.add.at(out, (slice(None), scatter.targets), v)
-        return
-    for sel, tgt in scatter.parts:
-        out[:, tgt] += v.take(sel, 1)
 
 
 class _JointTree:
@@ -204,7 +168,7 @@ class _JointTree:
             for is_body in (True, False):
                 ids = np.flatnonzero((depth == d) & ((np.arange(n) < nb) == is_body))
                 if ids.size:
-                    groups.append((ids, node_parent[ids], _Scatter(node_parent[ids])))
+                    groups.append((ids, node_parent[ids], Scatter(node_parent[ids])))
         self.groups = groups[::-1]  # deepest first
         self.body_pos = body_node
 
@@ -252,8 +216,8 @@ class _Rows:
     def __init__(self, joints, kind, parent, child):
         self.joints, self.kind = joints, kind
         # Scatters of the rows' impulses onto their bodies.
-        self.scatter_a = _Scatter(parent)
-        self.scatter_b = _Scatter(child)
+        self.scatter_a = Scatter(parent)
+        self.scatter_b = Scatter(child)
         # Angular lock rows used per kind (rows 3..5).
         self.ang_mask = np.zeros((len(joints), 3))
         self.ang_mask[kind == HINGE, 1:] = 1.0
@@ -447,8 +411,8 @@ class _TreeSolver(_Rows):
         Jt, twist, Js, Cs = js.limit_geometry(state, idx)
         # Remove the warm-started limit impulse.
         L = (lam[..., 0:1] - lam[..., 1:2]) * Jt + lam[..., 2:3] * Js
-        _scatter_add(state.angular_velocity, self.scatter_a, mat_vec(js._iinv[:, a], L))
-        _scatter_add(state.angular_velocity, self.scatter_b, -mat_vec(js._iinv[:, b], L))
+        scatter_add(state.angular_velocity, self.scatter_a, mat_vec(js._iinv[:, a], L))
+        scatter_add(state.angular_velocity, self.scatter_b, -mat_vec(js._iinv[:, b], L))
         state.joint_limit_impulse[:, idx] = 0.0
         C_lo = np.where(lo_finite, twist - lo0, np.inf)
         C_hi = np.where(hi_finite, hi0 - twist, np.inf)
@@ -659,8 +623,8 @@ class _TreeSolver(_Rows):
         tree's joints (or of ``rows``)."""
         rows = self if rows is None else rows
         out = np.zeros((x.shape[0], self.num_bodies, 6, x.shape[-1]))
-        _scatter_add(out, rows.scatter_a, _mtm(JA, x))
-        _scatter_add(out, rows.scatter_b, _mtm(JB, x))
+        scatter_add(out, rows.scatter_a, _mtm(JA, x))
+        scatter_add(out, rows.scatter_b, _mtm(JB, x))
         return out
 
     def solve_coupled(self, tree_rows, loop_rows, rows, inv_metric_times, M=None, M_inv=None):
@@ -804,7 +768,7 @@ class _TreeSolver(_Rows):
                 if g.has_parent:
                     Jg = Jp.take(g.jids, 1)
                     Lg = _mm(Di, Jg)
-                    _scatter_add(acc_b, g.scatter, _mtm(Jg, Lg))
+                    scatter_add(acc_b, g.scatter, _mtm(Jg, Lg))
             Dinv.append(Di)
             L.append(Lg if g.has_parent else None)
         return Dinv, L
@@ -846,7 +810,7 @@ class _TreeSolver(_Rows):
             else:
                 b = R.take(g.jids, 1) - acc_j.take(g.jids, 1)
                 if g.has_parent:
-                    _scatter_add(acc_b, g.scatter, _mtm(Lg, b))
+                    scatter_add(acc_b, g.scatter, _mtm(Lg, b))
             bp.append(b)
         x_b = np.empty((W, nb, 6, k))
         x_j = np.empty(R.shape)

@@ -44,6 +44,7 @@ from .coloring import color_pairs
 from .math3d import (EX, EY, EZ, clamp_norm, cross, quat_rotate_inv, dot, mat_vec, quat_conj, quat_mul,
                      quat_rotate, sym3_solve, quat_to_matrix, world_inv_inertia)
 from .joint_projection import project_joints
+from .scatter import Scatter, scatter_add
 from .soft import implicit_spring_impulse_from, implicit_spring_terms, make_soft, select_softness
 from .state import Event
 
@@ -138,6 +139,7 @@ class JointSet:
                     actuators.append(Actuator(j.name + suffix, i, axis, float(self.max_torque[i, axis])))
         self.actuators = tuple(actuators)
         self.act_joint = np.array([a.joint for a in actuators], dtype=np.int64)
+        self._motor_child, self._motor_parent = Scatter(self.child[self.act_joint]), Scatter(self.parent[self.act_joint])
         self.act_axis = np.array([a.axis for a in actuators], dtype=np.int64)
         self.act_max = np.array([a.max_torque for a in actuators], dtype=float)
 
@@ -277,6 +279,7 @@ class JointSet:
         self._warm_order = np.concatenate([np.r_[lo:hi, n + lo:n + hi] for lo, hi in zip(sizes[:-1], sizes[1:])]
                                           ).astype(np.int64) if n else np.zeros(0, dtype=np.int64)
         self._warm_bodies = np.concatenate((self.parent[self._warm_joints], self.child[self._warm_joints]))[self._warm_order]
+        self._warm_scatter = Scatter(self._warm_bodies)
         self._frames_on = False  # frames of _frames_state cached between begin_step and end_step
         self._frames = self._frames_state = None
         self._limits = self._swing_twist = None  # of every joint, cached with the frames
@@ -429,8 +432,8 @@ class JointSet:
         t = axis * tau[..., None]
         if self.breakable:
             t = t * (~view.joint_broken[:, j])[..., None]
-        np.add.at(acc.torque, (slice(None), self.child[j]), t)
-        np.add.at(acc.torque, (slice(None), self.parent[j]), -t)
+        scatter_add(acc.torque, self._motor_child, t)
+        scatter_add(acc.torque, self._motor_parent, -t)
 
     def passive(self, model, state, h):
         """Muscle tone: an implicit spring-damper on each joint axis towards the
@@ -643,10 +646,10 @@ class JointSet:
         inv_m = model.inv_mass
         ang_a = mat_vec(self._iinv.take(a, 1), cross(ra, P) + L)
         ang_b = mat_vec(self._iinv.take(b, 1), cross(rb, P) + L)
-        order, bodies = self._warm_order, self._warm_bodies
-        np.add.at(state.velocity, (slice(None), bodies),
-                  np.concatenate((-(P * inv_m[a][:, None]), P * inv_m[b][:, None]), axis=1)[:, order])
-        np.add.at(state.angular_velocity, (slice(None), bodies), np.concatenate((-ang_a, ang_b), axis=1)[:, order])
+        order, bodies = self._warm_order, self._warm_scatter
+        scatter_add(state.velocity, bodies,
+                    np.concatenate((-(P * inv_m[a][:, None]), P * inv_m[b][:, None]), axis=1)[:, order])
+        scatter_add(state.angular_velocity, bodies, np.concatenate((-ang_a, ang_b), axis=1)[:, order])
 
     def _limit_vector(self, state, idx):
         lam = state.joint_limit_impulse[:, idx]
