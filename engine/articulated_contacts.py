@@ -35,7 +35,7 @@ contact rows keep their lever arms for the step. There are three columns
 and padded to the batch's largest count C; memory per world: C x (6 x bodies
 + 7 + C) floats for Z, J, A and the per-column arrays; while they are built,
 the tree's substitution holds about five more COLUMN_BLOCK x 6 x bodies and
-A's build one more C x C. A ragdoll lying
+A's build about four C x COLUMN_BLOCK. A ragdoll lying
 on the ground has up to about 31 valid points (C = 93) against 14 rows of 4
 point slots (168 columns when every slot had its columns).
 
@@ -114,19 +114,6 @@ class ArticulatedContacts:
         a, b, _, _, _, _, _, Ja, Jb, mask = tree.blocks(js, state, tree)
         factors = tree._factor(Ja, Jb, mask)
         self.Z_columns = np.empty((W, C, N * 6))
-        # A = J_c Z (W, C, C), stored by columns, each contiguous: A_columns[w, i]
-        # = A[w, :, i], the column velocities' change per unit impulse on column
-        # i (the sweeps read one column per update; A is symmetric only to
-        # rounding). Row r of J_c is J[r] on its body's six rows of Z, so
-        # A[r, i] = Σ_d J[r, d] Z[6 body_r + d, i], summed over d in order,
-        # element by element: a matrix product over the padded columns rounded
-        # differently with the batch's column count, and a world stepped alone
-        # left the batch's trajectory after 82 steps. Built block by block from
-        # each block's Z rows at the points' bodies (one gather of 6-row slabs).
-        self.A_columns = np.empty((W, C, C))
-        worlds = np.arange(W)[:, None]
-        point_body = self.body[:, 0::3]  # the three columns of a point share its body
-        J_points = self.J.reshape(W, C // 3, 3, 6)
         for lo in range(0, C, COLUMN_BLOCK):
             hi = min(lo + COLUMN_BLOCK, C)
             sel = (col3 >= lo) & (col3 < hi)
@@ -137,11 +124,29 @@ class ArticulatedContacts:
             U[..., :3, :] -= F[..., :3, :] * model.inv_mass[:, None, None]
             U[..., 3:, :] -= np.matmul(tree.iinv, F[..., 3:, :])
             self.Z_columns[:, lo:hi] = U.reshape(W, N * 6, hi - lo).transpose(0, 2, 1)
-            Zp = U[worlds, point_body]  # (W, points, 6, block): Z's rows of each point's body
-            A = np.zeros((W, C // 3, 3, hi - lo))
+        # A = J_c Z (W, C, C), stored by columns, each contiguous: A_columns[w, i]
+        # = A[w, :, i], the column velocities' change per unit impulse on column
+        # i (the sweeps read one column per update; A is symmetric only to
+        # rounding). Row r of J_c is J[r] on its body's six rows of Z, so
+        # A[r, i] = Σ_d J[r, d] Z[6 body_r + d, i], summed over d in order,
+        # element by element: a matrix product over the padded columns rounded
+        # differently with the batch's column count, and a world stepped alone
+        # left the batch's trajectory after 82 steps. The three columns of a
+        # point share its body, so each Z row is gathered once per point.
+        # Built after Z, not block by block within its loop: A alive beside the
+        # substitution's temporaries raised the step's peak memory by a fifth.
+        self.A_columns = np.empty((W, C, C))
+        point_body = self.body[:, 0::3]
+        J_points = self.J.reshape(W, C // 3, 3, 6)
+        A = self.A_columns.reshape(W, C, C // 3, 3)
+        A[...] = 0.0
+        Z = self.Z_columns.reshape(W, C, N, 6)
+        worlds, bodies = np.arange(W)[:, None, None], point_body[:, None, :]
+        for lo in range(0, C, COLUMN_BLOCK):
+            hi = min(lo + COLUMN_BLOCK, C)
+            Zp = Z[worlds, np.arange(lo, hi)[:, None], bodies]  # (W, block, points, 6): Z's rows at each point's body
             for d in range(6):
-                A += J_points[..., d, None] * Zp[:, :, None, d]
-            self.A_columns[:, lo:hi] = A.reshape(W, C, hi - lo).transpose(0, 2, 1)
+                A[:, lo:hi] += Zp[:, :, :, None, d] * J_points[:, None, :, :, d]
         self.M, self.tree_bodies = tree.M, tree.t.bodies  # the metric of the joint solve, for _velocities
         diag = np.einsum("wcc->wc", self.A_columns)
         self.m = np.where(diag > 0, 1.0 / np.where(diag > 0, diag, 1.0), 0.0)  # effective masses

@@ -265,7 +265,15 @@ class _TreeSolver(_Rows):
         self.geometric_weight = None  # per step: 1, or (W, tree joints) weights, or None
         self.loop_geometric_weight = None  # the same for the loop-closing rows solved with the tree
         self._factored = None  # (state, blocks, factors) of the current positions and metric (see solve)
-        self._limit_consts = None  # see _limit_constants
+        # Per tree joint, for limit_rows: the twist bounds with infinite ones as
+        # 0 (rad), which bounds are finite, the ball joints (as a column) and
+        # which limit rows exist (twist, swing, none) while the joint is whole.
+        lo, hi = js.lower[j], js.upper[j]
+        self.limit_exists = np.zeros((j.size, 3), dtype=bool)
+        self.limit_exists[:, 0] = js.has_limit[j] & (self.kind != FIXED)
+        self.limit_exists[:, 1] = js.has_swing[j]
+        self._limit_constants = (np.where(np.isfinite(lo), lo, 0.0), np.where(np.isfinite(hi), hi, 0.0),
+                                 np.isfinite(lo), np.isfinite(hi), (self.kind == BALL)[:, None], self.limit_exists)
 
     def begin_step(self, js, model, state, h):
         """The bodies' metric M (W, tree bodies, 6, 6) at the state's
@@ -406,7 +414,7 @@ class _TreeSolver(_Rows):
         σ·λ >= 0 required, and which rows exist (W, nj, 3)."""
         idx = self.joints
         a, b = js.parent[idx], js.child[idx]
-        lo0, hi0, lo_finite, hi_finite, ball_col, exists_static = self._limit_constants(js)
+        lo0, hi0, lo_finite, hi_finite, ball_col, exists_static = self._limit_constants
         lam = state.joint_limit_impulse[:, idx]
         Jt, twist, Js, Cs = js.limit_geometry(state, idx)
         # Remove the warm-started limit impulse.
@@ -438,20 +446,6 @@ class _TreeSolver(_Rows):
         r = r + sigma * bias
         r = np.where(exists, r, 0.0)
         return rows, r, sigma, exists, lower
-
-    def _limit_constants(self, js):
-        """Per tree joint, fixed at build: the twist bounds with infinite ones
-        as 0 (rad), which bounds are finite, the ball joints (as a column) and
-        which limit rows exist (twist, swing, none) for an unbroken joint."""
-        if self._limit_consts is None:
-            idx = self.joints
-            lo, hi = js.lower[idx], js.upper[idx]
-            exists = np.zeros((idx.size, 3), dtype=bool)
-            exists[:, 0] = js.has_limit[idx] & (self.kind != FIXED)
-            exists[:, 1] = js.has_swing[idx]
-            self._limit_consts = (np.where(np.isfinite(lo), lo, 0.0), np.where(np.isfinite(hi), hi, 0.0),
-                                  np.isfinite(lo), np.isfinite(hi), (self.kind == BALL)[:, None], exists)
-        return self._limit_consts
 
     def solve(self, js, model, state, bias_rate, mass_scale, impulse_scale, use_bias, h):
         if not self.limits:

@@ -139,7 +139,8 @@ class JointSet:
                     actuators.append(Actuator(j.name + suffix, i, axis, float(self.max_torque[i, axis])))
         self.actuators = tuple(actuators)
         self.act_joint = np.array([a.joint for a in actuators], dtype=np.int64)
-        self._motor_child, self._motor_parent = Scatter(self.child[self.act_joint]), Scatter(self.parent[self.act_joint])
+        self._motor_child = Scatter(self.child[self.act_joint])
+        self._motor_parent = Scatter(self.parent[self.act_joint])
         self.act_axis = np.array([a.axis for a in actuators], dtype=np.int64)
         self.act_max = np.array([a.max_torque for a in actuators], dtype=float)
 
@@ -160,8 +161,8 @@ class JointSet:
                 self.tree.limits = bool((has_limit | has_swing)[self.tree.joints].any())
                 # The tree's possible limit rows: (tree joint, slot) with slot 0 twist, 1 swing.
                 tj = self.tree.joints
-                twist_j = np.flatnonzero(has_limit[tj] & (self.kind[tj] != FIXED))
-                swing_j = np.flatnonzero(has_swing[tj])
+                twist_j = np.flatnonzero(self.tree.limit_exists[:, 0])
+                swing_j = np.flatnonzero(self.tree.limit_exists[:, 1])
                 self.tree.limit_candidates = (np.concatenate((twist_j, swing_j)),
                                               np.repeat([0, 1], (twist_j.size, swing_j.size)))
         # Loop-closing joints solved with the tree (``_TreeSolver.solve_with_loops``),
@@ -278,8 +279,8 @@ class JointSet:
         n = len(self._warm_joints)
         self._warm_order = np.concatenate([np.r_[lo:hi, n + lo:n + hi] for lo, hi in zip(sizes[:-1], sizes[1:])]
                                           ).astype(np.int64) if n else np.zeros(0, dtype=np.int64)
-        self._warm_bodies = np.concatenate((self.parent[self._warm_joints], self.child[self._warm_joints]))[self._warm_order]
-        self._warm_scatter = Scatter(self._warm_bodies)
+        self._warm_scatter = Scatter(np.concatenate((self.parent[self._warm_joints],
+                                                     self.child[self._warm_joints]))[self._warm_order])
         self._frames_on = False  # frames of _frames_state cached between begin_step and end_step
         self._frames = self._frames_state = None
         self._limits = self._swing_twist = None  # of every joint, cached with the frames
@@ -628,9 +629,9 @@ class JointSet:
             lam = state.joint_linear_impulse
             self._load_before = np.sqrt(dot(lam, lam))  # the load before this substep's solve
         # The stored impulses move velocities only (no row reads them), so every
-        # joint's are applied in one scatter, each body's terms in colour order,
-        # parent's before child's within a colour: the sums of a sweep colour by
-        # colour, in one call.
+        # joint's are applied in one ordered scatter-add (``scatter_add``), each
+        # body's terms in colour order, parent's before child's within a colour:
+        # the sums of a sweep colour by colour.
         idx = self._warm_joints
         a, b, fpw, fcw, ra, rb = self.frames(state, idx)
         P = state.joint_linear_impulse.take(idx, 1)
@@ -646,10 +647,10 @@ class JointSet:
         inv_m = model.inv_mass
         ang_a = mat_vec(self._iinv.take(a, 1), cross(ra, P) + L)
         ang_b = mat_vec(self._iinv.take(b, 1), cross(rb, P) + L)
-        order, bodies = self._warm_order, self._warm_scatter
-        scatter_add(state.velocity, bodies,
+        order, scatter = self._warm_order, self._warm_scatter
+        scatter_add(state.velocity, scatter,
                     np.concatenate((-(P * inv_m[a][:, None]), P * inv_m[b][:, None]), axis=1)[:, order])
-        scatter_add(state.angular_velocity, bodies, np.concatenate((-ang_a, ang_b), axis=1)[:, order])
+        scatter_add(state.angular_velocity, scatter, np.concatenate((-ang_a, ang_b), axis=1)[:, order])
 
     def _limit_vector(self, state, idx):
         lam = state.joint_limit_impulse[:, idx]

@@ -1,7 +1,7 @@
 """Scatter-add over the body axis: ``out[:, t[i]] += v[:, i]`` for a fixed
 list of targets t, in position order (as ``np.add.at`` sums), but in a few
 indexed adds on large batches, where ``np.add.at`` costs several times more.
-Used wherever rows (joints, contacts) hand impulses to their bodies."""
+Used by the joint tree's solve and the joints' warm start and motor torques."""
 
 from __future__ import annotations
 
@@ -22,18 +22,15 @@ class Scatter:
     same bits, whichever ``scatter_add`` takes."""
 
     def __init__(self, targets):
-        self.targets = np.asarray(targets)
-        parts, seen = [], []
+        self.targets = np.asarray(targets, dtype=np.int64)
+        parts, count = [], {}
         for i, t in enumerate(self.targets.tolist()):
-            for k, used in enumerate(seen):
-                if t not in used:
-                    used.add(t)
-                    parts[k].append(i)
-                    break
-            else:
-                seen.append({t})
-                parts.append([i])
-        self.parts = [(np.array(sel), self.targets[sel]) for sel in parts]
+            k = count.get(t, 0)  # the k-th occurrence of t goes to part k
+            count[t] = k + 1
+            if k == len(parts):
+                parts.append([])
+            parts[k].append(i)
+        self.parts = [(np.array(sel, dtype=np.int64), self.targets[sel]) for sel in parts]
 
 
 def scatter_add(out, scatter, v):
