@@ -160,7 +160,6 @@ class JointSet:
                 lim_in_tree = in_tree
                 self.tree.limits = bool((has_limit | has_swing)[self.tree.joints].any())
                 # The tree's possible limit rows: (tree joint, slot) with slot 0 twist, 1 swing.
-                tj = self.tree.joints
                 twist_j = np.flatnonzero(self.tree.limit_exists[:, 0])
                 swing_j = np.flatnonzero(self.tree.limit_exists[:, 1])
                 self.tree.limit_candidates = (np.concatenate((twist_j, swing_j)),
