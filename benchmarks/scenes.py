@@ -143,7 +143,8 @@ def _motor_work(model, q_before, state, u):
     """The work (J, per world) of a step's motor torques u, held for the
     step: τ times the turn about each motor's parent-frame axis, the
     rotation vector of q_r(after) q_r(before)* (∫ω dt exactly while ω keeps
-    its direction in the parent frame). A trapezoid rule on τ·ω at the
+    its direction in the parent frame; a turn of more than π within one
+    step would alias, which the humanoid's limited joints do not reach). A trapezoid rule on τ·ω at the
     step's ends missed what happens between them: at full torques a thin
     arm twists 1.39 rad into its limit within one step and stops there,
     and a world's first step from rest gained 55 J where the rule counted
