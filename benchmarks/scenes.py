@@ -144,19 +144,16 @@ def _motor_work(model, q_before, state, u):
     step: τ times the turn about each motor's parent-frame axis, the
     rotation vector of q_r(after) q_r(before)* (∫ω dt exactly while ω keeps
     its direction in the parent frame; a turn of more than π within one
-    step would alias, which the humanoid's limited joints do not reach). A trapezoid rule on τ·ω at the
-    step's ends missed what happens between them: at full torques a thin
-    arm twists 1.39 rad into its limit within one step and stops there,
-    and a world's first step from rest gained 55 J where the rule counted
-    44 (``ragdoll_max_torque``)."""
+    step would alias, which the humanoid's limited joints do not reach).
+    A trapezoid rule on τ·ω at the step's ends missed what happens between
+    them: at full torques a thin arm twists 1.39 rad into its limit within
+    one step and stops there, and a world's first step from rest gained
+    55 J where the rule counted 44 (``ragdoll_max_torque``)."""
     if u is None or model.num_actuators == 0:
         return np.zeros(state.num_worlds)
     js = model.joints
-    d = math3d.quat_mul(_relative_rotation(model, state), math3d.quat_conj(q_before))
-    d = np.where(d[..., :1] < 0, -d, d)
-    s = np.sqrt((d[..., 1:] ** 2).sum(-1))
-    angle = 2.0 * np.arctan2(s, d[..., 0])
-    phi = d[..., 1:] * np.where(s > 0, angle / np.where(s > 0, s, 1.0), 2.0)[..., None]  # rotation vector, rad
+    turn = math3d.quat_mul(_relative_rotation(model, state), math3d.quat_conj(q_before))
+    phi = math3d.quat_to_rotation_vector(turn)  # (W, J, 3), rad
     tau = np.clip(u, -js.act_max, js.act_max)
     if js.breakable:
         tau = tau * ~state.joint_broken[:, js.act_joint]

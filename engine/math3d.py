@@ -148,6 +148,15 @@ def quat_from_axis_angle(axis, angle) -> np.ndarray:
     return np.concatenate((np.cos(half)[..., None], axis * s[..., None]), axis=-1)
 
 
+def quat_to_rotation_vector(q: np.ndarray) -> np.ndarray:
+    """The rotation vector φ n (..., 3), angle φ in [0, π] radians, of unit
+    quaternions ``q`` (either sign): the inverse of ``quat_from_axis_angle``."""
+    q = np.where(q[..., :1] < 0, -q, q)
+    s = np.sqrt((q[..., 1:] ** 2).sum(-1))
+    angle = 2.0 * np.arctan2(s, q[..., 0])
+    return q[..., 1:] * np.where(s > 0, angle / np.where(s > 0, s, 1.0), 2.0)[..., None]
+
+
 # quat_to_matrix's entries (row-major) as a ± b of products of components
 # (w, x, y, z = 0..3): the first factors, the second factors, and the signs of b.
 _M_PAIRS = ((2, 2, 3, 3), (1, 2, 0, 3), (1, 3, 0, 2),

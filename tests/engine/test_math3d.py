@@ -55,3 +55,15 @@ def test_compact_forms_are_the_textbook_products():
     np.testing.assert_allclose(M.quat_to_matrix(M.quat_mul(p, q)), M.quat_to_matrix(p) @ r, atol=1e-14)
     k = m @ np.swapaxes(m, -1, -2) + np.eye(3)
     np.testing.assert_allclose(M.sym3_inverse(k) @ k, np.broadcast_to(np.eye(3), (5, 3, 3)), atol=1e-12)
+
+
+def test_rotation_vector_inverts_axis_angle():
+    rng = np.random.default_rng(3)
+    axis = rng.normal(size=(50, 3))
+    angle = rng.uniform(0.0, np.pi, size=50)
+    angle[:3] = (0.0, 1e-9, np.pi - 1e-9)
+    q = M.quat_from_axis_angle(axis, angle)
+    expected = axis / np.linalg.norm(axis, axis=-1, keepdims=True) * angle[:, None]
+    np.testing.assert_allclose(M.quat_to_rotation_vector(q), expected, atol=1e-12)
+    # -q is the same rotation.
+    np.testing.assert_allclose(M.quat_to_rotation_vector(-q), expected, atol=1e-12)
