@@ -20,6 +20,7 @@ from __future__ import annotations
 import numpy as np
 
 from .collision import MAX_POINTS, aabb, candidate_pairs, overlapping, pair_function
+from .contact_projection import project_static_contacts
 from .contact_solver import ContactRows
 from .math3d import norm
 from .shapes import NONE, PLANE
@@ -86,6 +87,8 @@ class ContactSet:
         if "self_collision" in fx:
             self.effect_names.add("self_collision")
         self.rows = None
+        #: the points of the bodies the last step's static projection moved (``project_static``)
+        self.projected = None
 
     def initial_arrays(self, W):
         P = self.num_pairs
@@ -172,6 +175,15 @@ class ContactSet:
         if self.settings.solver == "thesis":
             self.rows.project_positions(model, state)
         self.rows.store(state)
+
+    def project_static(self, model, state):
+        """After the substeps: move bodies deeper than
+        ``static_contact_projection_depth`` in a static shape back out to it
+        (:mod:`engine.contact_projection`); the moved points are kept in
+        ``projected`` for the joint projection's metric. Returns whether
+        anything moved."""
+        self.projected = project_static_contacts(self, model, state, self.settings.static_contact_projection_depth)
+        return self.projected is not None
 
     # --------------------------------------------------------------- queries
     def bodies_in_contact(self, state) -> np.ndarray:

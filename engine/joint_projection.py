@@ -209,6 +209,11 @@ def _metric(tree, model, state, weight, worlds):
     rows = model.contacts.rows if model.contacts is not None and weight > 0 else None
     if rows is not None:
         _add_contact_metric(P, rows, model, state, weight)
+    moved = model.contacts.projected if model.contacts is not None and weight > 0 else None
+    if moved is not None:
+        # The points the static contact projection just moved out (engine.contact_projection), at full weight.
+        _add_point_stiffness(P, moved.world, moved.body, moved.lever, moved.normal,
+                             weight * model.mass[moved.body])
     M = tree.M[worlds] + P[worlds][:, tree.t.bodies]
     # A world already diverging gets the identity: its projection is garbage,
     # and it is reported non-finite after the step instead of stopping the batch.
@@ -232,6 +237,11 @@ def _add_contact_metric(P, rows, model, state, weight):
             if not on.any():
                 continue
             lever = quat_rotate(state.orientation[rows.w[on], body[on]], local[on, j])  # at the current orientation
-            u = np.concatenate((rows.n[on], cross(lever, rows.n[on])), axis=-1)
-            k = weight * model.mass[body[on]] * ramp[on, j]
-            np.add.at(P, (rows.w[on], body[on]), k[:, None, None] * u[:, :, None] * u[:, None, :])
+            _add_point_stiffness(P, rows.w[on], body[on], lever, rows.n[on], weight * model.mass[body[on]] * ramp[on, j])
+
+
+def _add_point_stiffness(P, world, body, lever, normal, k):
+    """Add k u uᵀ, u = (n, r × n), to P's (world, body) blocks: a spring of
+    stiffness k against moving the point at lever r along n."""
+    u = np.concatenate((normal, cross(lever, normal)), axis=-1)
+    np.add.at(P, (world, body), k[:, None, None] * u[:, :, None] * u[:, None, :])

@@ -149,6 +149,9 @@ def _advance(model, state, control):
             state.orientation[...] = quat_integrate(state.orientation, state.angular_velocity - w1, h)
             _positions_moved(model, state, constraints)
             _solve(model, state, constraints, h, use_bias=False)
+    # Before the joints' end_step: their projection closes the joints this move opened.
+    if model.contacts is not None and model.contacts.project_static(model, state) and model.joints is not None:
+        model.joints.positions_moved()
     for c in constraints:
         c.end_step(model, state, h, events)
     if contacts is not None and contacts.rows is not None:

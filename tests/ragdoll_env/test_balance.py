@@ -119,9 +119,14 @@ class _FakeContacts:
 
     effect_names = set()
     has_constraints = False
+    rows = None
+    projected = None
 
     def __init__(self, touching):
         self.touching = touching
+
+    def project_static(self, model, state):
+        return False
 
     def touching_static(self, state):
         out = np.zeros((state.num_worlds, len(self.names)), dtype=bool)
