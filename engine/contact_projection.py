@@ -47,15 +47,16 @@ class ProjectedPoints(NamedTuple):
     world: np.ndarray   # (K,) world index
     body: np.ndarray    # (K,) dynamic body index
     lever: np.ndarray   # (K, 3) m, from the body's centre to the point (world frame)
-    normal: np.ndarray  # (K, 3) unit contact normal
+    normal: np.ndarray  # (K, 3) unit normal, out of the static shape
 
 
 def project_static_contacts(contacts, model, state, depth: float) -> ProjectedPoints | None:
     """Move the dynamic body of every (world, static pair) deeper than
-    ``depth`` (m) back out to ``depth``, in place; returns the moved bodies'
-    penetrating points, or None when nothing moved. Each world's arithmetic is
-    its own (a world moves the same alone or in a batch), and worlds with
-    nothing that deep keep their positions bit for bit."""
+    ``depth`` (m) back out to ``depth``, in place; returns the points of the
+    moved bodies' manifolds with the shapes they were moved out of, or None
+    when nothing moved. Each world's arithmetic is its own (a world moves the
+    same alone or in a batch), and worlds with nothing that deep keep their
+    positions bit for bit."""
     idx = contacts.static_pairs
     if idx.size == 0 or not np.isfinite(depth):
         return None
@@ -92,13 +93,33 @@ def project_static_contacts(contacts, model, state, depth: float) -> ProjectedPo
     moves_b = model.dynamic[b]
     body = np.where(moves_b, b, a)
     out = np.where(moves_b, 1.0, -1.0)[:, None] * n
-    # Every point of a moved body's manifold (however far: the margin is
-    # unbounded) goes to the metric. With only the penetrating ones, the joint
-    # projection closed a foot's ankle by turning the foot about its one deep
-    # corner, and its toe went 10.8 cm into the ground.
+    # Every point of a moved body's manifold, however far (the margin is
+    # unbounded), goes to the metric: pinned along the normal at the points
+    # that hold it up (3 or more for a box), the body can only slide and
+    # turn in the plane, so closing its joints cannot turn another corner in.
     k_row, k_slot = np.nonzero(valid[deep])
     points = ProjectedPoints(w[k_row], body[k_row], point[deep][k_row, k_slot] - pos[w[k_row], body[k_row]],
                              out[k_row])
-    # A body deep in two static shapes moves out of both (the moves add).
-    np.add.at(pos, (w, body), excess[deep][:, None] * out)
+    shift = _moves(w, body, excess[deep], out, pos.shape)
+    pos[w, body] += shift[w, body]
     return points
+
+
+def _moves(w, body, excess, out, shape):
+    """Each (world, body)'s translation (shape of the positions, m): out of
+    its static shapes one after another in pair order, each move only what the
+    moves before it left, max(0, excess_i - d·n_i) n_i, so a body deep in two
+    coplanar shapes (a floor of tiles) moves out once, not twice."""
+    shift = np.zeros(shape)
+    key = w * shape[1] + body
+    order = np.argsort(key, kind="stable")  # each (world, body)'s rows together, in pair order
+    first = np.r_[True, key[order][1:] != key[order][:-1]]
+    start = np.maximum.accumulate(np.where(first, np.arange(key.size), 0))
+    rank = np.empty(key.size, dtype=np.int64)
+    rank[order] = np.arange(key.size) - start
+    for r in range(int(rank.max()) + 1):  # rows of one rank have distinct (world, body)
+        k = rank == r
+        wk, bk, nk = w[k], body[k], out[k]
+        left = np.maximum(excess[k] - (shift[wk, bk] * nk).sum(axis=-1), 0.0)
+        shift[wk, bk] += left[:, None] * nk
+    return shift

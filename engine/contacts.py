@@ -87,7 +87,7 @@ class ContactSet:
         if "self_collision" in fx:
             self.effect_names.add("self_collision")
         self.rows = None
-        #: the points of the bodies the last step's static projection moved (``project_static``)
+        #: the points of the bodies the static projection moved in the last pass (``project_static``)
         self.projected = None
 
     def initial_arrays(self, W):
@@ -179,10 +179,14 @@ class ContactSet:
     def project_static(self, model, state):
         """After the substeps: move bodies deeper than
         ``static_contact_projection_depth`` in a static shape back out to it
-        (:mod:`engine.contact_projection`); the moved points are kept in
-        ``projected`` for the joint projection's metric. Returns whether
-        anything moved."""
-        self.projected = project_static_contacts(self, model, state, self.settings.static_contact_projection_depth)
+        (:mod:`engine.contact_projection`; not with ``solver="thesis"``, which
+        resolves penetration its own way); the moved points are kept in
+        ``projected`` (world indices of this pass's worlds) for the joint
+        projection's metric. Returns whether anything moved."""
+        self.projected = None
+        if self.settings.solver != "thesis":
+            depth = self.settings.static_contact_projection_depth
+            self.projected = project_static_contacts(self, model, state, depth)
         return self.projected is not None
 
     # --------------------------------------------------------------- queries

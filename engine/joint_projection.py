@@ -18,7 +18,10 @@ k = ``joint_projection_contact_weight`` × the body's mass (smoothly to 0 at
 ``CONTACT_RANGE``). Without that term the projection undid landings: it closed
 the stretched ankle of a dropped ragdoll by turning the light foot, whose toe
 went 13 cm into the ground (24 mm without projection); with it the ground
-holds the foot and the leg moves instead (14 mm).
+holds the foot and the leg moves instead (14 mm). A body the static contact
+projection has just moved out of the ground (:mod:`engine.contact_projection`)
+adds the term at every point of its manifold with it, at full weight (on top of
+its rows' own terms), so the projection does not turn it back in.
 
 Each pass turns no body by more than ``MAX_TURN``, and a pass that leaves a
 world's error larger is taken back and ends that world's projection. A world

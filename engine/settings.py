@@ -425,7 +425,10 @@ class Settings:
     static_contact_projection_depth: m; a body that ends a step deeper than
         this in a static shape is moved back out to it along the contact
         normal, positions only, before the joint projection closes the joints
-        the move opened (:mod:`engine.contact_projection`); inf: never.
+        the move opened (:mod:`engine.contact_projection`); inf: never. Not
+        with ``solver="thesis"`` (its own penetration resolution); with
+        ``joint_solver="gauss_seidel"`` or ``joint_projection_passes`` 0 the
+        joints a move opens are closed by the next steps' solves.
         Default 2 cm, beyond what resting contacts sink (2-3 mm at the bottom
         of a pile of ten ragdolls): under random maximum torques the rows'
         view within a step (material points, the start's manifold, limits

@@ -12,7 +12,9 @@
                    first with articulated_contacts); integrate positions; relax solve
                    (and further relax passes over the contacts of unjointed bodies)
       restitution  once, from the closing velocities before the solve
-      end of step  joint post-stabilisation (positions back onto the joints
+      end of step  static contact projection (bodies deeper than 2 cm in a
+                   static shape moved back out to 2 cm, positions only);
+                   joint post-stabilisation (positions back onto the joints
                    beyond a slop: 0.2 mm for articulations touching something
                    or driven by a motor, 4 cm for the others by default),
                    breaking springs and joints, events,
@@ -149,7 +151,9 @@ def _advance(model, state, control):
             state.orientation[...] = quat_integrate(state.orientation, state.angular_velocity - w1, h)
             _positions_moved(model, state, constraints)
             _solve(model, state, constraints, h, use_bias=False)
-    # Before the joints' end_step: their projection closes the joints this move opened.
+    # Before the constraints' end_step: the joints' projection closes the
+    # joints this move opens, and the contacts' restitution, which comes
+    # first, takes the joint frames of the moved positions.
     if model.contacts is not None and model.contacts.project_static(model, state) and model.joints is not None:
         model.joints.positions_moved()
     for c in constraints:
