@@ -80,15 +80,13 @@ CLOSED_JOINTS = {"joint_hertz": math.inf, "joint_limits_in_tree": True, "joint_p
 #: The defaults before 2026-12-04 (``Settings(**SOFT_JOINTS)``), kept for
 #: speed: an articulation touching something is soft (60 Hz, damping ratio 2),
 #: its limits are Gauss-Seidel rows after the tree solve, its contacts are
-#: solved body by body, its anchors are projected back only beyond 4 cm and
-#: nothing is projected out of static shapes.
+#: solved body by body and its anchors are projected back only beyond 4 cm.
 #: The step costs 0.27-0.66 of the defaults' on a ragdoll on the ground (W =
 #: 1024 to 1; 63 against 200 KB per world); the
 #: ragdoll's joint anchors open by 4.0 cm under random torques (defaults
 #: 0.2 mm) and the standing PD on Balance falls more often (README).
 SOFT_JOINTS = {"joint_hertz": 60.0, "joint_limits_in_tree": False, "joint_projection_slop": 0.04,
-               "articulated_contacts": False, "articulated_contact_sweeps": 1,
-               "static_contact_projection_depth": math.inf}
+               "articulated_contacts": False, "articulated_contact_sweeps": 1}
 
 
 @dataclass(frozen=True)
@@ -425,15 +423,18 @@ class Settings:
     static_contact_projection_depth: m; a body that ends a step deeper than
         this in a static shape is moved back out to it along the contact
         normal, positions only, before the joint projection closes the joints
-        the move opened (:mod:`engine.contact_projection`); inf: never. Not
-        with ``solver="thesis"`` (its own penetration resolution); with
+        the move opened (:mod:`engine.contact_projection`). Default inf: off.
+        At 0.02 it takes out the deep limbs of random maximum torques (32
+        worlds x 500 steps: 70 of 16,000 world-steps deeper than 5 cm, 12 cm
+        at worst, against none, 2.5 cm), but the long runs then reach a
+        latent blow-up of the limits (the engine without it blows up the same
+        from that state): near a swing of pi the ankle's twist limit row's
+        Jacobian grows without bound (|J| 93 rad/rad; 1 standing), and its
+        warm start kicked a 1 kg foot to 27,000 rad/s; the 1,000-world soak
+        opened a joint by 18 cm, the 100,000-step run by 9.8 cm. Not with
+        ``solver="thesis"`` (its own penetration resolution); with
         ``joint_solver="gauss_seidel"`` or ``joint_projection_passes`` 0 the
         joints a move opens are closed by the next steps' solves.
-        Default 2 cm, beyond what resting contacts sink (2-3 mm at the bottom
-        of a pile of ten ragdolls): under random maximum torques the rows'
-        view within a step (material points, the start's manifold, limits
-        after contacts) let limbs end 70 of 16,000 world-steps deeper than
-        5 cm, 12 cm at worst.
     check_finite: raise ``SimulationError`` naming the world, body and step
         when a state turns non-finite (else only flag it).
     world_chunk: most worlds stepped in one pass; a larger batch is stepped
@@ -492,7 +493,7 @@ class Settings:
     restitution_threshold: float = 1.0
     linear_slop: float = 0.0
     speculative_distance: float = 0.02
-    static_contact_projection_depth: float = 0.02
+    static_contact_projection_depth: float = math.inf
     check_finite: bool = True
     world_chunk: int | None = 256
 

@@ -1,6 +1,7 @@
-"""Static contact post-stabilisation (engine.contact_projection): a body that
-ends a step deeper than ``static_contact_projection_depth`` in a static shape
-is moved back out to that depth, positions only; its joints are closed after."""
+"""Static contact post-stabilisation (engine.contact_projection, off by
+default): a body that ends a step deeper than ``static_contact_projection_depth``
+in a static shape is moved back out to that depth, positions only; its joints
+are closed after."""
 
 from __future__ import annotations
 
@@ -14,14 +15,14 @@ from engine import math3d
 from engine.humanoid import add_humanoid
 from engine.math3d import quat_from_axis_angle, quat_rotate
 
-DEPTH = e.Settings().static_contact_projection_depth
+DEPTH = 0.02  # m, static_contact_projection_depth in these tests
 HALF = np.array([0.2, 0.15, 0.1])  # m, the box's half extents
 
 
 def box_in_ground(depth_of_corner, **settings):
     """A box on the ground tilted 0.3 rad about x, its lowest corner
     ``depth_of_corner`` (m) below the ground, at rest."""
-    b = e.SceneBuilder(**settings)
+    b = e.SceneBuilder(**{"static_contact_projection_depth": DEPTH, **settings})
     b.add_ground()
     q = quat_from_axis_angle(np.array([1.0, 0.0, 0.0]), 0.3)
     b.add_body("box", e.Box(tuple(HALF)), mass=2.0, position=(0, 0, 1.0), orientation=tuple(q))
@@ -85,7 +86,7 @@ def test_a_box_deep_across_two_static_tiles_moves_out_once():
     # Two static boxes side by side, tops flush at z = 0, and a dynamic box
     # straddling their seam 12 cm deep: both pairs are deep along the same
     # normal, and the box rises to DEPTH below the tops, not by both excesses.
-    b = e.SceneBuilder()
+    b = e.SceneBuilder(static_contact_projection_depth=DEPTH)
     b.enable("contacts")
     for name, x in (("tile_a", -0.5), ("tile_b", 0.5)):
         b.add_body(name, e.Box((0.5, 0.5, 0.1)), position=(x, 0, -0.1), static=True)
@@ -100,7 +101,7 @@ def test_a_box_deep_across_two_static_tiles_moves_out_once():
 def test_a_sphere_deep_in_a_static_box_is_moved_out_against_the_normal():
     # The sphere is the pair's first shape here (sphere-box), so it moves
     # against the normal, which points from it to the box.
-    b = e.SceneBuilder()
+    b = e.SceneBuilder(static_contact_projection_depth=DEPTH)
     b.enable("contacts")
     b.add_body("block", e.Box((1.0, 1.0, 0.5)), position=(0, 0, -0.5), static=True)
     b.add_body("ball", e.Sphere(0.1), mass=1.0, position=(0, 0, 0.1 - 0.15))
@@ -122,7 +123,7 @@ def test_a_foot_pushed_into_the_ground_is_moved_out_and_its_ankle_closed(tilt):
     # joint projection's metric; the moved manifold's own points were needed
     # under random maximum torques, where a foot turned about its one deep
     # corner went 10.8 cm in: the hard cases' 5 cm bound covers that.)
-    b = e.SceneBuilder()
+    b = e.SceneBuilder(static_contact_projection_depth=DEPTH)
     b.add_ground()
     add_humanoid(b, position=(0, 0, 0))
     model = b.build()
@@ -141,6 +142,10 @@ def test_the_thesis_solver_keeps_its_own_penetration_resolution():
     model, state = box_in_ground(0.15, solver="thesis")
     e.step(model, state)
     assert model.contacts.projected is None
+
+
+def test_the_projection_is_off_by_default():
+    assert math.isinf(e.Settings().static_contact_projection_depth)
 
 
 def test_a_negative_projection_depth_is_refused():
