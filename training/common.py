@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import math
 import os
 import platform
 import re
@@ -122,13 +123,21 @@ def engine_settings(venv) -> dict:
     return {k: v for k, v in asdict(venv.core.settings).items() if k not in _NOT_PHYSICS}
 
 
+#: Settings fields added to the engine after runs began recording their
+#: settings, each with the value that steps as the engine did before it: a
+#: run that did not record one of them was trained with that value.
+ADDED_SETTINGS = {"static_contact_projection_depth": math.inf}
+
+
 def settings_changes(recorded: dict | None, current: dict) -> dict:
-    """{field: (recorded, current)} for the fields whose values differ, a
-    field the run did not record (added to the engine since) with None as
-    its recorded value; empty when the run recorded none (runs before
+    """{field: (recorded, current)} for the fields whose values differ. A
+    field the run did not record counts as its ``ADDED_SETTINGS`` value, or,
+    if it is not there, with None as its recorded value (added to the engine
+    since, stepping otherwise); empty when the run recorded none (runs before
     2026-12-04)."""
     if not recorded:
         return {}
+    recorded = {**ADDED_SETTINGS, **recorded}
     return {k: (recorded.get(k), v) for k, v in current.items() if k not in recorded or recorded[k] != v}
 
 

@@ -1,4 +1,5 @@
 import json
+import math
 import shutil
 
 import numpy as np
@@ -252,3 +253,16 @@ def test_a_run_records_its_engine_settings_and_evaluation_names_the_changed_ones
         evaluate.main([str(run), "--episodes", "1", "--no-baselines", "--json", str(out)])
     changed = json.loads(out.read_text())["engine_settings_changed"]
     assert changed == {"joint_projection_slop": [0.005, recorded["joint_projection_slop"]]}
+
+
+def test_a_setting_added_since_a_run_counts_as_its_old_behaviour():
+    """A field the run did not record is compared as the value that steps as
+    the engine did before it (``ADDED_SETTINGS``); an unknown one as None."""
+    C = common
+    current = {"joint_projection_slop": 0.0002, "static_contact_projection_depth": math.inf}
+    assert C.settings_changes({"joint_projection_slop": 0.0002}, current) == {}
+    on = {**current, "static_contact_projection_depth": 0.02}
+    assert C.settings_changes({"joint_projection_slop": 0.0002}, on) == {
+        "static_contact_projection_depth": (math.inf, 0.02)}
+    assert C.settings_changes({"joint_projection_slop": 0.0002}, {**current, "new_field": 1.0}) == {
+        "new_field": (None, 1.0)}
