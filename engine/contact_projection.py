@@ -41,6 +41,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .collision import aabb, overlapping
+from .scatter import occurrence_rank
 
 
 class ProjectedPoints(NamedTuple):
@@ -114,12 +115,7 @@ def _moves(w, body, excess, out, shape):
     moves before it left, max(0, excess_i - d·n_i) n_i, so a body deep in two
     coplanar shapes (a floor of tiles) moves out once, not twice."""
     shift = np.zeros(shape)
-    key = w * shape[1] + body
-    order = np.argsort(key, kind="stable")  # each (world, body)'s rows together, in pair order
-    first = np.r_[True, key[order][1:] != key[order][:-1]]
-    start = np.maximum.accumulate(np.where(first, np.arange(key.size), 0))
-    rank = np.empty(key.size, dtype=np.int64)
-    rank[order] = np.arange(key.size) - start
+    rank = occurrence_rank(w * shape[1] + body)  # the rows are in pair order
     for r in range(int(rank.max()) + 1):  # rows of one rank have distinct (world, body)
         k = rank == r
         wk, bk, nk = w[k], body[k], out[k]

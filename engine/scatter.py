@@ -1,7 +1,8 @@
 """Scatter-add over the body axis: ``out[:, t[i]] += v[:, i]`` for a fixed
 list of targets t, in position order (as ``np.add.at`` sums), but in a few
 indexed adds on large batches, where ``np.add.at`` costs several times more.
-Used by the joint tree's solve and the joints' warm start and motor torques."""
+Used by the joint tree's solve and the joints' warm start and motor torques;
+``occurrence_rank`` also by the static contact projection's moves."""
 
 from __future__ import annotations
 
@@ -23,14 +24,24 @@ class Scatter:
 
     def __init__(self, targets):
         self.targets = np.asarray(targets, dtype=np.int64)
-        parts, count = [], {}
-        for i, t in enumerate(self.targets.tolist()):
-            k = count.get(t, 0)  # the k-th occurrence of t goes to part k
-            count[t] = k + 1
-            if k == len(parts):
-                parts.append([])
-            parts[k].append(i)
-        self.parts = [(np.array(sel, dtype=np.int64), self.targets[sel]) for sel in parts]
+        rank = occurrence_rank(self.targets)  # the k-th occurrence of a target goes to part k
+        parts = [np.flatnonzero(rank == k) for k in range(int(rank.max()) + 1 if rank.size else 0)]
+        self.parts = [(sel, self.targets[sel]) for sel in parts]
+
+
+def occurrence_rank(keys):
+    """(n,) int64: for each position i, how many earlier positions hold the
+    same key (0 for a key's first occurrence). Positions of one rank have
+    distinct keys, so an indexed update per rank, in rank order, touches each
+    key once per pass and in position order."""
+    keys = np.asarray(keys)
+    order = np.argsort(keys, kind="stable")  # each key's positions together, in position order
+    sorted_keys = keys[order]
+    first = np.r_[True, sorted_keys[1:] != sorted_keys[:-1]]
+    start = np.maximum.accumulate(np.where(first, np.arange(keys.size), 0))
+    rank = np.empty(keys.size, dtype=np.int64)
+    rank[order] = np.arange(keys.size) - start
+    return rank
 
 
 def scatter_add(out, scatter, v):

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 import engine.scatter as scatter_module
-from engine.scatter import Scatter, scatter_add
+from engine.scatter import Scatter, occurrence_rank, scatter_add
 
 
 def _terms(rng, W, n):
@@ -24,6 +24,12 @@ def test_parts_hold_each_target_once_in_position_order():
     for sel, tgt in parts:
         assert len(set(tgt.tolist())) == tgt.size
         assert tgt.tolist() == [targets[i] for i in sel]
+
+
+def test_occurrence_rank_counts_earlier_positions_with_the_same_key():
+    assert occurrence_rank([3, 1, 3, 3, 0, 1, 2, 3]).tolist() == [0, 0, 1, 2, 0, 1, 0, 3]
+    assert occurrence_rank(np.zeros(0, dtype=np.int64)).size == 0
+    assert Scatter([]).parts == []
 
 
 @pytest.mark.parametrize("per_part", [0, 10 ** 9], ids=["indexed adds", "np.add.at"])
