@@ -416,7 +416,7 @@ class _TreeSolver(_Rows):
         a, b = js.parent[idx], js.child[idx]
         lo0, hi0, lo_finite, hi_finite, ball_col, exists_static = self._limit_constants
         lam = state.joint_limit_impulse[:, idx]
-        Jt, twist, Js, Cs = js.limit_geometry(state, idx)
+        Jt, twist, Js, Cs, twist_defined = js.limit_geometry(state, idx)
         # Remove the warm-started limit impulse.
         L = (lam[..., 0:1] - lam[..., 1:2]) * Jt + lam[..., 2:3] * Js
         scatter_add(state.angular_velocity, self.scatter_a, mat_vec(js._iinv[:, a], L))
@@ -434,6 +434,7 @@ class _TreeSolver(_Rows):
         rows[..., 0, :] = Jt
         rows[..., 1, :] = np.where(ball_col, Js, 0.0)
         exists = exists_static & ~state.joint_broken.take(idx, 1)[..., None]
+        exists[..., 0] &= twist_defined
         sigma = np.ones((W, nj, 3))
         sigma[..., 0] = np.where(lower, 1.0, -1.0)
         C = np.zeros((W, nj, 3))

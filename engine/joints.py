@@ -52,6 +52,10 @@ HINGE, BALL, FIXED = 0, 1, 2
 KINDS = {"hinge": HINGE, "ball": BALL, "fixed": FIXED}
 JOINT_HERTZ_CAP = 0.5  # joint stiffness at most this x the substep rate
 AXIS_NAMES = {HINGE: ("",), BALL: (":twist", ":swing_y", ":swing_z")}
+# The twist of a ball joint is undefined at a swing of π (the child's twist axis
+# opposite the parent's) and its rate θ̇ = ω·(a + c)/(1 + cos φ) grows as
+# 1/cos(φ/2) on the way there: beyond this swing (rad) its limit row is dropped.
+TWIST_LIMIT_MAX_SWING = 5.0 * math.pi / 6.0
 
 
 @dataclass(frozen=True)
@@ -655,7 +659,7 @@ class JointSet:
         lam = state.joint_limit_impulse[:, idx]
         if not lam.any():
             return 0.0
-        Jt, _, Js, _ = self.limit_geometry(state, idx)
+        Jt, _, Js, _, _ = self.limit_geometry(state, idx)
         return (lam[..., 0:1] - lam[..., 1:2]) * Jt + lam[..., 2:3] * Js
 
     def _limit_rows(self, idx, fpw, fcw, st=None):
@@ -668,15 +672,23 @@ class JointSet:
         f(s) = ‖(s_y/c_y, s_z/c_z)‖ for the swing vector s = φ d, so the cone's
         boundary is f = 1 and C ≈ φ_max - φ near it; with n = (0, d), m = a × n
         (parent frame), ṡ = (ω·n) d + (φ/sin φ)(ω·m) d⊥ + φ θ̇ d⊥.
+        Beyond a swing of ``TWIST_LIMIT_MAX_SWING`` the twist row is dropped
+        (``twist_defined`` false; its axis is then c, bounded, for a stored
+        impulse or a factorisation), and the swing row's φ/sin φ and θ̇ terms
+        are held at their values there: both grow without bound towards π,
+        where a stored impulse along them once kicked a 1 kg foot to
+        27,000 rad/s.
         ``st``: the joints' ``swing_twist`` if already known.
-        Returns (J_twist, twist, J_swing, C_swing).
+        Returns (J_twist, twist, J_swing, C_swing, twist_defined).
         """
         ax_p = quat_rotate(fpw, EX)
         ax_c = quat_rotate(fcw, EX)
         twist, phi, dy, dz = swing_twist(quat_mul(quat_conj(fpw), fcw)) if st is None else st
         ball = (self.kind[idx] == BALL)[:, None]
+        twist_defined = ~(self.kind[idx] == BALL) | (phi <= TWIST_LIMIT_MAX_SWING)
         mid = ax_p + ax_c
         mid = mid / np.maximum(dot(mid, mid), 1e-24)[..., None] * 2.0  # (a + c)/(1 + cos φ)
+        mid = np.where(twist_defined[..., None], mid, ax_c)
         Jt = np.where(ball, mid, ax_p)
         cone = self.cone[idx]
         cy, cz = cone[:, 0], cone[:, 1]
@@ -689,12 +701,13 @@ class JointSet:
         zero = np.zeros(dy.shape)
         n = quat_rotate(fpw, np.stack((zero, dy, dz), axis=-1))
         m = quat_rotate(fpw, np.stack((zero, -dz, dy), axis=-1))
-        sin_phi = np.sin(phi)
-        ratio = np.where(sin_phi > 1e-6, phi / np.where(sin_phi > 1e-6, sin_phi, 1.0), 1.0)
+        phi_r = np.minimum(phi, TWIST_LIMIT_MAX_SWING)
+        sin_phi = np.sin(phi_r)
+        ratio = np.where(sin_phi > 1e-6, phi_r / np.where(sin_phi > 1e-6, sin_phi, 1.0), 1.0)
         Js = -phi_max[..., None] * (g_n[..., None] * n + (g_m * ratio)[..., None] * m
-                                    + (g_m * phi)[..., None] * mid)
+                                    + (g_m * phi_r)[..., None] * mid)
         C_swing = phi_max * (1.0 - phi * f_dir)
-        return Jt, twist, Js, C_swing
+        return Jt, twist, Js, C_swing, twist_defined
 
     def _apply(self, model, state, a, b, ra, rb, P, L):
         """Apply linear impulse P at the anchors and angular impulse L (to the
@@ -756,9 +769,9 @@ class JointSet:
     def _compute_gs_limit_rows(self, state):
         idx = self.gs_limit
         a, b = self.parent[idx], self.child[idx]
-        Jt, twist, Js, C_swing = self.limit_geometry(state, idx)
+        Jt, twist, Js, C_swing, twist_defined = self.limit_geometry(state, idx)
         lo, hi = self.lower[idx], self.upper[idx]
-        has_lo, has_hi = np.isfinite(lo), np.isfinite(hi)
+        has_lo, has_hi = np.isfinite(lo) & twist_defined, np.isfinite(hi) & twist_defined
         ia, ib = self._iinv.take(a, 1), self._iinv.take(b, 1)
 
         def effective_mass(axis):

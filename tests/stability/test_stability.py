@@ -253,18 +253,16 @@ def test_fling_speed_discounts_a_fall_but_not_a_launch():
     assert thrown.max_fling_speed == pytest.approx(2.5, abs=0.02)
 
 
-# ------------------------------------------------------------------ known blow-up
+# ------------------------------------------------------------------ swing near pi
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="measured: joint anchor error 0.184 m at step 770 (the twist limit row's "
-                                       "Jacobian near a swing of pi, |J| 93, warm-started a 1 kg foot to "
-                                       "27,000 rad/s); README Status")
 def test_twist_limit_near_swing_pi_does_not_blow_up():
     """World 689 of the 1,000-world soak's random maximum torques (seed 0),
     stepped alone with the static contact projection at 2 cm, which steers
     it into the state: at step 770 the right ankle's twist limit row, whose
-    Jacobian grows without bound as the swing nears pi, takes its stored
-    impulse in the joints' warm start and kicks the foot to 27,000 rad/s.
-    The engine without the projection blows up the same way from that state."""
+    Jacobian grew without bound as the swing neared pi, took its stored
+    impulse in the joints' warm start and kicked the foot to 27,000 rad/s
+    (anchor error 0.184 m). Beyond a swing of 150° the twist row is now
+    dropped and both rows held bounded (``joints.TWIST_LIMIT_MAX_SWING``)."""
     case = sc.ragdoll_max_torque(num_worlds=1, seed=0)
     model = case.model.with_settings(check_finite=False, static_contact_projection_depth=0.02)
     state = model.initial_state(1)
