@@ -22,9 +22,12 @@ Under random maximum torques on every joint of the humanoid (32 worlds x 500
 steps of ``benchmarks.scenes.ragdoll_max_torque``) limbs ended 70 of the
 16,000 world-steps deeper than 5 cm (12 cm at worst); exact narrow phase at
 the step's end and this projection at 2 cm take those out (2.5 cm at worst).
-It is off by default (``Settings.static_contact_projection_depth`` inf): with
-it the long maximum-torque runs reached a blow-up of the joint limits near a
-swing of pi that the engine has without it too (README, Status).
+It is on by default at 2 cm (``Settings.static_contact_projection_depth``;
+inf turns it off, as ``SOFT_JOINTS`` does). It stayed off until the ball
+joints' limit rows were bounded near a swing of pi
+(``joints.TWIST_LIMIT_MAX_SWING``): the long maximum-torque runs it steered
+into such swings blew up there, as the engine without it does from those
+states.
 
 The move opens the body's joints; the joint projection that follows
 (:mod:`engine.joint_projection`) closes them again, with the moved points in

@@ -86,7 +86,8 @@ CLOSED_JOINTS = {"joint_hertz": math.inf, "joint_limits_in_tree": True, "joint_p
 #: ragdoll's joint anchors open by 4.0 cm under random torques (defaults
 #: 0.2 mm) and the standing PD on Balance falls more often (README).
 SOFT_JOINTS = {"joint_hertz": 60.0, "joint_limits_in_tree": False, "joint_projection_slop": 0.04,
-               "articulated_contacts": False, "articulated_contact_sweeps": 1}
+               "articulated_contacts": False, "articulated_contact_sweeps": 1,
+               "static_contact_projection_depth": math.inf}
 
 
 @dataclass(frozen=True)
@@ -423,15 +424,14 @@ class Settings:
     static_contact_projection_depth: m; a body that ends a step deeper than
         this in a static shape is moved back out to it along the contact
         normal, positions only, before the joint projection closes the joints
-        the move opened (:mod:`engine.contact_projection`). Default inf: off.
-        At 0.02 it takes out the deep limbs of random maximum torques (32
-        worlds x 500 steps: 70 of 16,000 world-steps deeper than 5 cm, 12 cm
-        at worst, against none, 2.5 cm), but the long runs then reach a
-        latent blow-up of the limits (the engine without it blows up the same
-        from that state): near a swing of pi the ankle's twist limit row's
-        Jacobian grows without bound (|J| 93 rad/rad; 1 standing), and its
-        warm start kicked a 1 kg foot to 27,000 rad/s; the 1,000-world soak
-        opened a joint by 18 cm, the 100,000-step run by 9.8 cm. Not with
+        the move opened (:mod:`engine.contact_projection`); inf: off (as in
+        ``SOFT_JOINTS``). Default 0.02: under random maximum torques (32
+        worlds x 500 steps) limbs were deeper than 5 cm in 70 of 16,000
+        world-steps without it (12 cm at worst), in none with it (2.5 cm at
+        worst); it costs 0.4-1.4% of a step. It was kept off until the limit
+        rows stayed bounded near a swing of pi (``TWIST_LIMIT_MAX_SWING``):
+        the long runs it steered there blew up (a 1 kg foot kicked to
+        27,000 rad/s, a joint opened by 18 cm). Not with
         ``solver="thesis"`` (its own penetration resolution); with
         ``joint_solver="gauss_seidel"`` or ``joint_projection_passes`` 0 the
         joints a move opens are closed by the next steps' solves.
@@ -493,7 +493,7 @@ class Settings:
     restitution_threshold: float = 1.0
     linear_slop: float = 0.0
     speculative_distance: float = 0.02
-    static_contact_projection_depth: float = math.inf
+    static_contact_projection_depth: float = 0.02
     check_finite: bool = True
     world_chunk: int | None = 256
 
