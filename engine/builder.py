@@ -385,7 +385,9 @@ class SceneBuilder:
         twist_axis: world direction of the twist axis (the joint frame's x);
         swing_limits: (cone_y, cone_z), half-angles in radians in (0, π) of an
         elliptic swing cone about the frame's y and z axes; twist_limits:
-        (min, max) in radians within [-π, π]. max_torque: one value or
+        (min, max) in radians within [-π, π], not enforced while the swing
+        exceeds 150° (``joints.TWIST_LIMIT_MAX_SWING``: the twist is undefined
+        at a swing of π). max_torque: one value or
         (twist, swing_y, swing_z) in N·m; passive damping and stiffness act on
         each axis towards the build pose.
         """

@@ -22,12 +22,14 @@ Under random maximum torques on every joint of the humanoid (32 worlds x 500
 steps of ``benchmarks.scenes.ragdoll_max_torque``) limbs ended 70 of the
 16,000 world-steps deeper than 5 cm (12 cm at worst); exact narrow phase at
 the step's end and this projection at 2 cm take those out (2.5 cm at worst).
-It is on by default at 2 cm (``Settings.static_contact_projection_depth``;
-inf turns it off, as ``SOFT_JOINTS`` does). It stayed off until the ball
-joints' limit rows were bounded near a swing of pi
-(``joints.TWIST_LIMIT_MAX_SWING``): the long maximum-torque runs it steered
-into such swings blew up there, as the engine without it does from those
-states.
+It is off by default (``Settings.static_contact_projection_depth`` inf).
+Its first trial on by default (2 cm) reached two failures of other parts in
+the long maximum-torque runs, both fixed since: the ball joints' limit rows
+grew without bound near a swing of pi (``joints.TWIST_LIMIT_MAX_SWING``),
+and the joint projection stopped at a pass that overshot (it now halves the
+step). The second still failed the slow selection: a foot moved 8.2 cm out
+left its ankle 7.7 cm open after the joint projection's four passes, and
+one limb of the 100,000-step run went 5.9 cm deep (README, Status).
 
 The move opens the body's joints; the joint projection that follows
 (:mod:`engine.joint_projection`) closes them again, with the moved points in

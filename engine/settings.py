@@ -424,14 +424,14 @@ class Settings:
     static_contact_projection_depth: m; a body that ends a step deeper than
         this in a static shape is moved back out to it along the contact
         normal, positions only, before the joint projection closes the joints
-        the move opened (:mod:`engine.contact_projection`); inf: off (as in
-        ``SOFT_JOINTS``). Default 0.02: under random maximum torques (32
-        worlds x 500 steps) limbs were deeper than 5 cm in 70 of 16,000
-        world-steps without it (12 cm at worst), in none with it (2.5 cm at
-        worst); it costs 0.4-1.4% of a step. It was kept off until the limit
-        rows stayed bounded near a swing of pi (``TWIST_LIMIT_MAX_SWING``):
-        the long runs it steered there blew up (a 1 kg foot kicked to
-        27,000 rad/s, a joint opened by 18 cm). Not with
+        the move opened (:mod:`engine.contact_projection`). Default inf:
+        off. At 0.02, under random maximum torques (32 worlds x 500 steps),
+        limbs were deeper than 5 cm in none of 16,000 world-steps (2.5 cm at
+        worst) against 70 (12 cm), at 0.4-1.4% of a step; but the slow
+        selection still fails with it: a foot it moved 8.2 cm out of the
+        ground left the ankle open by 7.7 cm for a step (the joint
+        projection's four passes did not close it), and one limb of the
+        100,000-step run went 5.9 cm deep (README, Status). Not with
         ``solver="thesis"`` (its own penetration resolution); with
         ``joint_solver="gauss_seidel"`` or ``joint_projection_passes`` 0 the
         joints a move opens are closed by the next steps' solves.
@@ -493,7 +493,7 @@ class Settings:
     restitution_threshold: float = 1.0
     linear_slop: float = 0.0
     speculative_distance: float = 0.02
-    static_contact_projection_depth: float = 0.02
+    static_contact_projection_depth: float = math.inf
     check_finite: bool = True
     world_chunk: int | None = 256
 

@@ -12,9 +12,9 @@
                    first with articulated_contacts); integrate positions; relax solve
                    (and further relax passes over the contacts of unjointed bodies)
       restitution  once, from the closing velocities before the solve
-      end of step  static contact projection (bodies deeper than
-                   static_contact_projection_depth, 2 cm by default, in a
-                   static shape moved back out to it, positions only);
+      end of step  static contact projection if set (off by default: bodies
+                   deeper than static_contact_projection_depth in a static
+                   shape moved back out to it, positions only);
                    joint post-stabilisation (positions back onto the joints
                    beyond a slop: 0.2 mm for articulations touching something
                    or driven by a motor, 4 cm for the others by default),

@@ -1,5 +1,5 @@
-"""Static contact post-stabilisation (engine.contact_projection, on by
-default at 2 cm): a body that ends a step deeper than ``static_contact_projection_depth``
+"""Static contact post-stabilisation (engine.contact_projection, off by
+default): a body that ends a step deeper than ``static_contact_projection_depth``
 in a static shape is moved back out to that depth, positions only; its joints
 are closed after."""
 
@@ -144,8 +144,8 @@ def test_the_thesis_solver_keeps_its_own_penetration_resolution():
     assert model.contacts.projected is None
 
 
-def test_the_projection_is_on_by_default_at_2_cm_and_off_at_the_old_defaults():
-    assert e.Settings().static_contact_projection_depth == 0.02
+def test_the_projection_is_off_by_default_and_at_the_old_defaults():
+    assert math.isinf(e.Settings().static_contact_projection_depth)
     assert math.isinf(e.Settings(**e.SOFT_JOINTS).static_contact_projection_depth)
 
 
