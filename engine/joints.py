@@ -693,10 +693,9 @@ class JointSet:
         mid2 = dot(mid, mid)  # |a + c|² = 4 cos²(φ/2)
         mid = mid / np.maximum(mid2, 1e-24)[..., None] * 2.0  # (a + c)/(1 + cos φ), |mid| = 1/cos(φ/2)
         # Beyond the swing limit of the twist, |mid| held at 1/cos(TWIST_LIMIT_MAX_SWING/2), so that
-        # the swing row is continuous there; at a swing of π itself (a + c = 0), along c.
-        hold = np.where(mid2 > 1e-18, 0.5 * np.sqrt(mid2) / _COS_HALF_TWIST_SWING, 0.0)
-        mid = np.where(twist_defined[..., None], mid,
-                       np.where((mid2 > 1e-18)[..., None], mid * hold[..., None], ax_c / _COS_HALF_TWIST_SWING))
+        # the swing row is continuous there (0 at a swing of π itself, where a + c = 0).
+        hold = 0.5 * np.sqrt(mid2) / _COS_HALF_TWIST_SWING
+        mid = np.where(twist_defined[..., None], mid, mid * hold[..., None])
         # The dropped twist row keeps an axis (for its stored impulse and the tree's factorisation): c, unit.
         Jt = np.where(ball, np.where(twist_defined[..., None], mid, ax_c), ax_p)
         cone = self.cone[idx]

@@ -18,6 +18,7 @@ from benchmarks.scenes import RandomMaxTorque
 from engine.humanoid import add_humanoid
 from engine.joint_projection import TOLERANCE
 from engine.math3d import quat_from_axis_angle
+from tests.engine.saved_states import saved_soak_world
 
 
 def humanoid(position=(0.0, 0.0, 0.0), dt=1 / 60, **settings):
@@ -222,15 +223,7 @@ def test_a_pass_that_overshoots_is_retried_at_half_its_step():
     overshoots (9.2 → 9.6 cm); taken back and retried at half the step it
     closes the elbow to the slop (measured 0.24 mm); it used to stop there
     and leave the elbow 9.2 cm open for that step."""
-    from pathlib import Path
-
-    from benchmarks import scenes as sc
-
-    data = np.load(Path(__file__).parent / "data" / "soak_world721_step888.npz")
-    model = sc.ragdoll_max_torque(num_worlds=1, seed=0).model.with_settings(static_contact_projection_depth=0.02)
-    state = model.initial_state(1)
-    for k in state.arrays:
-        state.arrays[k][...] = data[k]
-    e.step(model, state, e.Control(motor=data["motor"]))
+    model, state, motor = saved_soak_world("soak_world721_step888", static_contact_projection_depth=0.02)
+    e.step(model, state, e.Control(motor=motor))
     assert model.body_index("lower_arm_l") in model.contacts.projected.body  # moved out of the ground
     assert model.joints.anchor_error(state).max() < 0.001

@@ -11,7 +11,9 @@ from scipy.special import ellipk
 
 import engine as e
 from engine.diagnostics import linear_momentum, total_energy
+from engine.joints import TWIST_LIMIT_MAX_SWING
 from engine.math3d import quat_from_axis_angle, quat_mul, quat_rotate
+from tests.engine.saved_states import saved_soak_world
 
 G = e.STANDARD_GRAVITY
 Y = np.array([0.0, 1.0, 0.0])
@@ -719,20 +721,11 @@ def test_an_ankle_swung_past_150_degrees_with_a_stored_limit_impulse_stays_whole
     to |J| 93 and the warm start kicked the 1 kg foot to 27,000 rad/s, the
     joint opening by 18 cm. Bounded rows: the anchors stay at the 0.2 mm slop
     (measured 0.2 mm, 123 rad/s at most)."""
-    from pathlib import Path
-
-    from benchmarks import scenes as sc
-    from engine.joints import TWIST_LIMIT_MAX_SWING
-
-    data = np.load(Path(__file__).parent / "data" / "soak_world689_step769.npz")
-    model = sc.ragdoll_max_torque(num_worlds=1, seed=0).model.with_settings(check_finite=False,
-                                                                           static_contact_projection_depth=0.02)
-    state = model.initial_state(1)
-    for k in state.arrays:
-        state.arrays[k][...] = data[k]
+    model, state, motors = saved_soak_world("soak_world689_step769", check_finite=False,
+                                            static_contact_projection_depth=0.02)
     assert np.linalg.norm(model.joints.angles(state)[0, :, 1:], axis=-1).max() > TWIST_LIMIT_MAX_SWING
     worst = fastest = 0.0
-    for motor in data["motor"]:
+    for motor in motors:
         e.step(model, state, e.Control(motor=motor))
         worst = max(worst, float(np.nan_to_num(model.joints.anchor_error(state), nan=np.inf).max()))
         fastest = max(fastest, float(np.nan_to_num(np.abs(state.angular_velocity), nan=np.inf).max()))
