@@ -18,25 +18,30 @@ the step, and under extreme motion they do not see everything:
 * the joint limits are solved after the contacts, and a foot held down by
   its ankle limit is pushed into the ground by them.
 
-Under random maximum torques on every joint of the humanoid (32 worlds x 500
-steps of ``benchmarks.scenes.ragdoll_max_torque``) limbs ended 70 of the
-16,000 world-steps deeper than 5 cm (12 cm at worst); exact narrow phase at
-the step's end and this projection at 2 cm take those out (2.5 cm at worst).
-It is off by default (``Settings.static_contact_projection_depth`` inf).
-Its first trial on by default (2 cm) reached two failures of other parts in
-the long maximum-torque runs, both fixed since: the ball joints' limit rows
-grew without bound near a swing of pi (``joints.TWIST_LIMIT_MAX_SWING``),
-and the joint projection stopped at a pass that overshot (it now halves the
-step). The second still failed the slow selection: a foot moved 8.2 cm out
-left its ankle 7.7 cm open after the joint projection's four passes, and
-one limb of the 100,000-step run went 5.9 cm deep (README, Status).
+Under random maximum torques on every joint of the humanoid (16 worlds x 500
+steps of ``benchmarks.scenes.ragdoll_max_torque``, seed 0) limbs went 10.4
+cm deep; exact narrow phase at the step's end and this projection at 2 cm
+(the default) leave 2.4 cm at worst.
 
 The move opens the body's joints; the joint projection that follows
 (:mod:`engine.joint_projection`) closes them again, with the moved points in
 its metric as stiff contact points (``ProjectedPoints``), so that it moves the
-rest of the chain rather than the body back into the ground. Only contacts
+rest of the chain rather than the body back into the ground. Closing them
+can still turn another body of the chain in (a shin 5.4 cm deep after its
+foot was moved out), so the two projections take ``ROUNDS`` turns, each
+round only in the worlds the one before moved something in, the metric
+holding every point moved so far. A world whose joints the passes cannot
+close after a move (a foot moved 8.2 cm out left its ankle 7.7 cm open) is
+projected again from before the move, as without this projection
+(``joint_projection.MAX_OPENING_AFTER_MOVE``). Only contacts
 with static bodies are projected: between two moving bodies the solve's
 impulses are the only arbiter of who moves.
+
+Its trials on by default before these rounds and that fallback reached
+failures of other parts in the long maximum-torque runs, fixed since: the
+ball joints' limit rows grew without bound near a swing of pi
+(``joints.TWIST_LIMIT_MAX_SWING``), and the joint projection stopped at a
+pass that overshot (it now halves the step).
 """
 
 from __future__ import annotations
@@ -46,34 +51,54 @@ from typing import NamedTuple
 import numpy as np
 
 from .collision import aabb, overlapping
+from .math3d import quat_rotate_inv
 from .scatter import occurrence_rank
+
+#: Rounds of the static contact projection and the joint projection in turn
+#: at a step's end (``engine.step``): the joints' closing can move another body
+#: of the chain into the ground, which the next round moves out again.
+ROUNDS = 3
+#: m: the least excess over the depth that moves a body.
+MIN_MOVE = 1e-9
 
 
 class ProjectedPoints(NamedTuple):
     """The contact points of the bodies moved by ``project_static_contacts``:
-    every point of their manifolds with the static shapes they were moved out of."""
+    every point of their manifolds with the static shapes they were moved out
+    of; and the worlds they are in, with those worlds' positions and
+    orientations from before the move, so that a world whose joints cannot
+    follow the move can be put back."""
 
     world: np.ndarray   # (K,) world index
     body: np.ndarray    # (K,) dynamic body index
-    lever: np.ndarray   # (K, 3) m, from the body's centre to the point (world frame)
+    lever: np.ndarray   # (K, 3) m, from the body's centre to the point, in the body's frame
     normal: np.ndarray  # (K, 3) unit normal, out of the static shape
+    worlds: np.ndarray              # (M,) the worlds with a moved body, ascending
+    position_before: np.ndarray     # (M, N, 3) m, their body positions before the move
+    orientation_before: np.ndarray  # (M, N, 4) their orientations then
 
 
-def project_static_contacts(contacts, model, state, depth: float) -> ProjectedPoints | None:
+def project_static_contacts(contacts, model, state, depth: float, worlds=None) -> ProjectedPoints | None:
     """Move the dynamic body of every (world, static pair) deeper than
     ``depth`` (m) back out to ``depth``, in place; returns the points of the
     moved bodies' manifolds with the shapes they were moved out of, or None
-    when nothing moved. Each world's arithmetic is its own (a world moves the
+    when nothing moved. ``worlds``: ascending indices of the worlds to look
+    at (None: all). Each world's arithmetic is its own (a world moves the
     same alone or in a batch), and worlds with nothing that deep keep their
     positions bit for bit."""
     idx = contacts.static_pairs
     if idx.size == 0 or not np.isfinite(depth):
         return None
     pos, quat = state.position, state.orientation
-    lo, hi = aabb(model.shape_type, model.shape_params, pos, quat)
+    if worlds is None:
+        lo, hi = aabb(model.shape_type, model.shape_params, pos, quat)
+    else:
+        lo, hi = aabb(model.shape_type, model.shape_params, pos[worlds], quat[worlds])
     # Boxes shrunk by depth / 2 on every side overlap only where the shapes may be that deep.
     over = overlapping(lo, hi, contacts.pair_a[idx], contacts.pair_b[idx], -0.5 * depth)
     s_idx, w_idx = np.nonzero(over.T)  # sorted by pair, as the kinds' slices want
+    if worlds is not None:
+        w_idx = worlds[w_idx]
     if w_idx.size == 0:
         return None
     p_idx = idx[s_idx]
@@ -94,7 +119,8 @@ def project_static_contacts(contacts, model, state, depth: float) -> ProjectedPo
         normal[sl], point[sl], valid[sl] = m.normal[0], m.point[0], m.valid[0]
         sep[sl] = np.where(m.valid[0], m.separation[0], np.inf)
     excess = -sep.min(axis=1) - depth  # m beyond the allowed depth
-    deep = excess > 0.0
+    # Not 0: a body moved out to the depth reads it again to a last bit.
+    deep = excess > MIN_MOVE
     if not deep.any():
         return None
     w, a, b, n = w_idx[deep], a[deep], b[deep], normal[deep]
@@ -107,11 +133,24 @@ def project_static_contacts(contacts, model, state, depth: float) -> ProjectedPo
     # that hold it up (3 or more for a box), the body can only slide and
     # turn in the plane, so closing its joints cannot turn another corner in.
     k_row, k_slot = np.nonzero(valid[deep])
-    points = ProjectedPoints(w[k_row], body[k_row], point[deep][k_row, k_slot] - pos[w[k_row], body[k_row]],
-                             out[k_row])
+    wk, bk = w[k_row], body[k_row]
+    moved = np.unique(w)
+    points = ProjectedPoints(wk, bk, quat_rotate_inv(quat[wk, bk], point[deep][k_row, k_slot] - pos[wk, bk]),
+                             out[k_row], moved, pos[moved], quat[moved])
     shift = _moves(w, body, excess[deep], out, pos.shape)
     pos[w, body] += shift[w, body]
     return points
+
+
+def merged(first, then):
+    """The points of two rounds of moves as one: a body moved again keeps
+    only the later round's points; the worlds and their state before are the
+    first round's (a round looks only at worlds the one before moved)."""
+    if first is None:
+        return then
+    n = first.position_before.shape[1]
+    keep = ~np.isin(first.world * n + first.body, then.world * n + then.body)
+    return ProjectedPoints(*(np.concatenate((x[keep], y)) for x, y in zip(first[:4], then[:4])), *first[4:])
 
 
 def _moves(w, body, excess, out, shape):

@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 
 from .collision import MAX_POINTS, aabb, candidate_pairs, overlapping, pair_function
-from .contact_projection import project_static_contacts
+from .contact_projection import merged, project_static_contacts
 from .contact_solver import ContactRows
 from .math3d import norm
 from .shapes import NONE, PLANE
@@ -87,7 +87,7 @@ class ContactSet:
         if "self_collision" in fx:
             self.effect_names.add("self_collision")
         self.rows = None
-        #: the points of the bodies the static projection moved in the last pass (``project_static``)
+        #: the points of the bodies the static projection moved in the last step (``project_static``)
         self.projected = None
 
     def initial_arrays(self, W):
@@ -176,18 +176,26 @@ class ContactSet:
             self.rows.project_positions(model, state)
         self.rows.store(state)
 
-    def project_static(self, model, state):
+    def project_static(self, model, state, worlds=None):
         """After the substeps: move bodies deeper than
         ``static_contact_projection_depth`` in a static shape back out to it
         (:mod:`engine.contact_projection`; not with ``solver="thesis"``, which
         resolves penetration its own way); the moved points are kept in
-        ``projected`` (world indices of this pass's worlds) for the joint
-        projection's metric. Returns whether anything moved."""
-        self.projected = None
-        if self.settings.solver != "thesis":
-            depth = self.settings.static_contact_projection_depth
-            self.projected = project_static_contacts(self, model, state, depth)
-        return self.projected is not None
+        ``projected`` for the joint projection's metric (world indices of the
+        step's last slice of worlds, ``Settings.world_chunk``). ``worlds``: a
+        further round after the joint projection, in these worlds only (those
+        the round before moved something in), its points merged with the
+        rounds' before. Returns the worlds it moved something in (ascending),
+        or None."""
+        if worlds is None:
+            self.projected = None
+        if self.settings.solver == "thesis":
+            return None
+        moved = project_static_contacts(self, model, state, self.settings.static_contact_projection_depth, worlds)
+        if moved is None:
+            return None
+        self.projected = merged(self.projected, moved)
+        return moved.worlds
 
     # --------------------------------------------------------------- queries
     def bodies_in_contact(self, state) -> np.ndarray:

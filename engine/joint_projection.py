@@ -77,30 +77,85 @@ MAX_HALVINGS = 3
 #: joints, angular rows at ANGULAR_SLOP_LEVER) is at most this fraction of the
 #: slop; a joint must exceed the slop by more than it to start a projection.
 TOLERANCE = 0.01
+#: m: a world whose joints the passes leave more than this beyond their slop
+#: after the static contact projection moved one of its bodies is projected
+#: again from before the move (``undo_unfollowed_moves``).
+MAX_OPENING_AFTER_MOVE = 0.002
 
 
-def project_joints(js, model, state):
+def project_joints(js, model, state, worlds=None, moved=False):
     """Project the tree joints of ``js`` in place (see the module docstring);
-    worlds with no error beyond the slop keep their state bit for bit."""
+    worlds with no error beyond the slop keep their state bit for bit.
+    ``worlds``: only these (ascending; None: all). ``moved``: the points the
+    static contact projection moved (``ProjectedPoints``) or None; by
+    default ``model.contacts.projected``."""
     tree = js.tree
     keep = ~tree.loop_touched[tree.component]
     if not keep.any():
         return
     slop = _slops(js)
     need = _worlds_beyond_slop(js, tree, state, keep, [tuple(x * (1.0 + TOLERANCE) for x in sl) for sl in slop])
+    if worlds is not None:
+        need &= np.isin(np.arange(state.num_worlds), worlds)
     if not need.any():
         return  # the usual step: no Jacobians built
     # Only the worlds beyond the slop are projected, on a copy of their
     # positions (each world's arithmetic is its own, so the same bits as in a
     # projection of every world); the rest cost nothing more.
     worlds = np.flatnonzero(need)
-    metric = _metric(tree, model, state, js.settings.joint_projection_contact_weight, worlds)
-    sub = State({k: state.arrays[k][worlds] for k in ("position", "orientation", "joint_broken")})
-    _project(js, tree, sub, keep, [tuple(x[worlds] for x in sl) for sl in slop], metric,
+    if moved is False:
+        moved = model.contacts.projected if model.contacts is not None else None
+    sub = _worlds_of(state, worlds)
+    _project(js, tree, sub, keep, _slops_of(slop, worlds),
+             _metric(tree, model, state, js.settings.joint_projection_contact_weight, worlds, moved),
              js.settings.joint_projection_passes)
     state.position[worlds] = sub.position
     state.orientation[worlds] = sub.orientation
     js.positions_moved()
+
+
+def undo_unfollowed_moves(js, model, state, moved, broken):
+    """After the last round of the static contact projection and this
+    projection: where the contact projection moved a body (``moved``, its
+    ``ProjectedPoints``) and the joints are left more than
+    ``MAX_OPENING_AFTER_MOVE`` beyond their slop, project the world again
+    from its positions before the move (``broken``: its joints' broken flags
+    then), without the moved points in the metric: the step without the
+    contact projection, bit for bit; and keep whichever of the two leaves
+    the smaller error."""
+    tree = js.tree
+    keep = ~tree.loop_touched[tree.component]
+    if not keep.any():
+        return
+    slop = _slops(js)
+    err = _merit(js, tree, _worlds_of(state, moved.worlds), keep, _slops_of(slop, moved.worlds))[2]
+    redo = err > MAX_OPENING_AFTER_MOVE
+    if not redo.any():
+        return
+    again = moved.worlds[redo]
+    unmoved = State({"position": state.position.copy(), "orientation": state.orientation.copy(),
+                     "joint_broken": state.joint_broken.copy()})
+    unmoved.position[again] = moved.position_before[redo]
+    unmoved.orientation[again] = moved.orientation_before[redo]
+    unmoved.joint_broken[again] = broken[redo]
+    project_joints(js, model, unmoved, again, moved=None)
+    alt_err = _merit(js, tree, _worlds_of(unmoved, again), keep, _slops_of(slop, again))[2]
+    back = again[alt_err < err[redo]]
+    if back.size:
+        state.position[back] = unmoved.position[back]
+        state.orientation[back] = unmoved.orientation[back]
+    js.positions_moved()
+
+
+def _worlds_of(state, worlds):
+    """A state of the given worlds' positions, orientations and joints'
+    broken flags (copies): what the projection reads and moves."""
+    return State({k: state.arrays[k][worlds] for k in ("position", "orientation", "joint_broken")})
+
+
+def _slops_of(slop, worlds):
+    """``_slops``' arrays for the given worlds."""
+    return [tuple(x[worlds] for x in sl) for sl in slop]
 
 
 def _slops(js):
@@ -120,8 +175,9 @@ def _slops(js):
 def _project(js, tree, state, keep, slop, metric, passes):
     """At most ``passes`` Gauss-Newton passes on ``state`` (positions,
     orientations and broken flags of the worlds being projected); ``slop`` as
-    ``_slops`` gives it, for those worlds."""
-    (tree_slop, loop_slop) = slop
+    ``_slops`` gives it, for those worlds. Returns each world's error beyond
+    the slop at the end (the merit below, m)."""
+    tree_slop = slop[0]
     stop = TOLERANCE * np.where(keep, tree_slop[0], np.inf).min(axis=1)  # m, per world (projected joints)
     M, M_inv = metric
     M_inv_tree = M_inv[:, tree.t.bodies]  # the leaf bodies' pivots
@@ -130,18 +186,8 @@ def _project(js, tree, state, keep, slop, metric, passes):
     halvings = np.zeros(state.num_worlds, dtype=int)
     before = moved = last = None
     for k in range(passes + 1):
-        rows = tree.jacobians(js, state, True, 1.0, velocity=False, max_push_out=np.inf, max_angular_push_out=np.inf)
+        rows, lrows, err = _merit(js, tree, state, keep, slop)
         a, b, Ja, Jb, mask, C = rows
-        C *= keep[:, None]
-        _beyond_slop(C, tree_slop)
-        # Merit: the 2-norm of the errors beyond the slop, the angular rows at the slop's lever (m).
-        err = _squared_error(C)
-        if loops is not None:
-            lrows = tree.jacobians(js, state, True, 1.0, velocity=False, max_push_out=np.inf,
-                                   max_angular_push_out=np.inf, rows=loops)
-            _beyond_slop(lrows[5], loop_slop)
-            err = err + _squared_error(lrows[5])
-        err = np.sqrt(err)
         back = np.zeros(state.num_worlds, dtype=bool)
         if before is not None:
             # A pass that left a world's error larger is taken back: the
@@ -159,7 +205,7 @@ def _project(js, tree, state, keep, slop, metric, passes):
                 back = worse & ~done
         worlds = (err > stop) & ~done
         if k == passes or not worlds.any():
-            return
+            return err
         if (worlds & ~back).any():
             mask *= keep[:, None]
             if loops is None:
@@ -184,6 +230,25 @@ def _project(js, tree, state, keep, slop, metric, passes):
         state.position[...] = np.where(body[..., None], state.position + d[..., :3], state.position)
         state.orientation[...] = np.where(body[..., None], quat_exp_integrate(state.orientation, d[..., 3:], 1.0),
                                           state.orientation)
+
+
+def _merit(js, tree, state, keep, slop):
+    """(tree rows, loop rows or None, merit (W,) m) of ``state``: the rows'
+    errors beyond the slop (in place of C), and the merit, the 2-norm of
+    those errors, the angular rows at the slop's lever."""
+    loops = js.loop_rows
+    rows = tree.jacobians(js, state, True, 1.0, velocity=False, max_push_out=np.inf, max_angular_push_out=np.inf)
+    C = rows[5]
+    C *= keep[:, None]
+    _beyond_slop(C, slop[0])
+    err = _squared_error(C)
+    lrows = None
+    if loops is not None:
+        lrows = tree.jacobians(js, state, True, 1.0, velocity=False, max_push_out=np.inf,
+                               max_angular_push_out=np.inf, rows=loops)
+        _beyond_slop(lrows[5], slop[1])
+        err = err + _squared_error(lrows[5])
+    return rows, lrows, np.sqrt(err)
 
 
 def _worlds_beyond_slop(js, tree, state, keep, slop):
@@ -220,22 +285,22 @@ def _beyond_slop(C, slop):
         C[..., rows] *= np.maximum(0.0, 1.0 - allowed[..., None] / np.maximum(norm, 1e-300))
 
 
-def _metric(tree, model, state, weight, worlds):
+def _metric(tree, model, state, weight, worlds, moved):
     """The projection's metric on the tree's bodies (len(worlds), tree bodies,
     6, 6) and its inverse on every body (len(worlds), N, 6, 6), zero for bodies
-    outside the tree, for the given worlds of ``state``. Every world takes the
-    same arithmetic whether or not another world has contacts, so a world
-    projects bit for bit the same alone or in a batch."""
+    outside the tree, for the given worlds of ``state``; ``moved``: the points
+    the static contact projection moved out (``ProjectedPoints``) or None.
+    Every world takes the same arithmetic whether or not another world has
+    contacts, so a world projects bit for bit the same alone or in a batch."""
     W, N = state.position.shape[:2]
     P = np.zeros((W, N, 6, 6))
     rows = model.contacts.rows if model.contacts is not None and weight > 0 else None
     if rows is not None:
         _add_contact_metric(P, rows, model, state, weight)
-    moved = model.contacts.projected if model.contacts is not None and weight > 0 else None
-    if moved is not None:
+    if moved is not None and weight > 0:
         # The points the static contact projection just moved out (engine.contact_projection), at full weight.
-        _add_point_stiffness(P, moved.world, moved.body, moved.lever, moved.normal,
-                             weight * model.mass[moved.body])
+        lever = quat_rotate(state.orientation[moved.world, moved.body], moved.lever)
+        _add_point_stiffness(P, moved.world, moved.body, lever, moved.normal, weight * model.mass[moved.body])
     M = tree.M[worlds] + P[worlds][:, tree.t.bodies]
     # A world already diverging gets the identity: its projection is garbage,
     # and it is reported non-finite after the step instead of stopping the batch.

@@ -43,7 +43,7 @@ import numpy as np
 from .coloring import color_pairs
 from .math3d import (EX, EY, EZ, clamp_norm, cross, quat_rotate_inv, dot, mat_vec, quat_conj, quat_mul,
                      quat_rotate, sym3_solve, quat_to_matrix, world_inv_inertia)
-from .joint_projection import project_joints
+from .joint_projection import project_joints, undo_unfollowed_moves
 from .scatter import Scatter, scatter_add
 from .soft import implicit_spring_impulse_from, implicit_spring_terms, make_soft, select_softness
 from .state import Event
@@ -928,10 +928,7 @@ class JointSet:
     def end_step(self, model, state, h, events):
         self._frames_on, self._frames, self._frames_state = False, None, None
         self._drop_position_caches()
-        if self.settings.solver == "thesis":
-            self._project_positions(model, state)
-        elif self.tree is not None and self.settings.joint_projection_passes:
-            project_joints(self, model, state)
+        self.project_positions(model, state)
         if not self.breakable:
             return
         self._add_load(state)
@@ -946,6 +943,28 @@ class JointSet:
             for w, j in zip(*np.nonzero(snapped)):
                 step = int(state.step[w]) + 1
                 events.append(Event("joint_broken", self.names[j], int(w), step, step * model.settings.dt))
+
+    @property
+    def projects_tree(self) -> bool:
+        """Whether the step's end projects the tree joints' positions
+        (:mod:`engine.joint_projection`)."""
+        return self.settings.solver != "thesis" and self.tree is not None and self.settings.joint_projection_passes > 0
+
+    def project_positions(self, model, state, worlds=None):
+        """Move the positions back onto the joints: the thesis's correction
+        with ``solver="thesis"``, else the tree's post-stabilisation if it
+        has passes (``worlds``: only these, ascending; None: all)."""
+        if self.settings.solver == "thesis":
+            self._project_positions(model, state)
+        elif self.projects_tree:
+            project_joints(self, model, state, worlds)
+
+    def undo_unfollowed_moves(self, model, state, moved, broken):
+        """Worlds whose joints could not follow the static contact
+        projection's moves go back to the step without them
+        (:func:`engine.joint_projection.undo_unfollowed_moves`)."""
+        if self.projects_tree:
+            undo_unfollowed_moves(self, model, state, moved, broken)
 
     def _project_positions(self, model, state):
         """The thesis's position correction: move the two anchors together,

@@ -424,14 +424,12 @@ class Settings:
     static_contact_projection_depth: m; a body that ends a step deeper than
         this in a static shape is moved back out to it along the contact
         normal, positions only, before the joint projection closes the joints
-        the move opened (:mod:`engine.contact_projection`). Default inf:
-        off. At 0.02, under random maximum torques (32 worlds x 500 steps),
-        limbs were deeper than 5 cm in none of 16,000 world-steps (2.5 cm at
-        worst) against 70 (12 cm), at 0.4-1.4% of a step; but the slow
-        selection still fails with it: a foot it moved 8.2 cm out of the
-        ground left the ankle open by 7.7 cm for a step (the joint
-        projection's four passes did not close it), and one limb of the
-        100,000-step run went 5.9 cm deep (README, Status). Not with
+        the move opened (:mod:`engine.contact_projection`; ``ROUNDS`` rounds
+        of both in turn, and a world whose joints cannot follow the move is
+        put back: ``joint_projection.MAX_OPENING_AFTER_MOVE``); inf: off (as
+        in ``SOFT_JOINTS``). Default 0.02: under random maximum torques (16
+        worlds x 500 steps) limbs went 2.4 cm deep at worst, against 10.4 cm
+        without (30 steps deeper than 5 cm), joints 0.3 against 0.2 mm. Not with
         ``solver="thesis"`` (its own penetration resolution); with
         ``joint_solver="gauss_seidel"`` or ``joint_projection_passes`` 0 the
         joints a move opens are closed by the next steps' solves.
@@ -493,7 +491,7 @@ class Settings:
     restitution_threshold: float = 1.0
     linear_slop: float = 0.0
     speculative_distance: float = 0.02
-    static_contact_projection_depth: float = math.inf
+    static_contact_projection_depth: float = 0.02
     check_finite: bool = True
     world_chunk: int | None = 256
 

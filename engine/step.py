@@ -12,12 +12,14 @@
                    first with articulated_contacts); integrate positions; relax solve
                    (and further relax passes over the contacts of unjointed bodies)
       restitution  once, from the closing velocities before the solve
-      end of step  static contact projection if set (off by default: bodies
-                   deeper than static_contact_projection_depth in a static
-                   shape moved back out to it, positions only);
+      end of step  static contact projection (bodies deeper than
+                   static_contact_projection_depth, 2 cm by default, in a
+                   static shape moved back out to it, positions only);
                    joint post-stabilisation (positions back onto the joints
                    beyond a slop: 0.2 mm for articulations touching something
-                   or driven by a motor, 4 cm for the others by default),
+                   or driven by a motor, 4 cm for the others by default);
+                   where the contact projection moved something, more
+                   rounds of both (contact_projection.ROUNDS in all),
                    breaking springs and joints, events,
                    non-finite check
 
@@ -34,6 +36,7 @@ from dataclasses import replace
 import numpy as np
 
 from .articulated_contacts import ArticulatedContacts
+from . import contact_projection
 from .control import Control
 from .errors import SimulationError
 from .integrators import explicit_euler, integrate_positions, integrate_velocities, runge_kutta4
@@ -155,16 +158,43 @@ def _advance(model, state, control):
     # Before the constraints' end_step: the joints' projection closes the
     # joints this move opens, and the contacts' restitution, which comes
     # first, takes the joint frames of the moved positions.
-    if model.contacts is not None and model.contacts.project_static(model, state) and model.joints is not None:
+    moved = None if model.contacts is None else model.contacts.project_static(model, state)
+    if moved is not None and model.joints is not None:
         model.joints.positions_moved()
+    rounds = moved is not None and joints is not None and joints.projects_tree
+    if rounds:
+        broken = state.joint_broken[moved]  # before the joints' end_step breaks any
     for c in constraints:
         c.end_step(model, state, h, events)
+    if rounds:
+        _further_projection_rounds(model, state, moved, broken)
     if contacts is not None and contacts.rows is not None:
         contacts.rows.articulated = None  # its response matrices served this step only
     for effect in model.end_hooks:
         effect.end_of_step(model, state, events)
     state.step += 1
     state.events = events
+
+
+def _further_projection_rounds(model, state, moved, broken):
+    """Closing the joints that the static contact projection opened can turn
+    another body of the chain into the ground (a shin 5.4 cm deep after its
+    foot was moved out, benchmarks.scenes ragdoll_max_torque): up to
+    ``contact_projection.ROUNDS`` rounds of both projections in turn, each
+    round only in the worlds the one before moved something in, the joint
+    projection's metric holding the points moved so far; then a world whose
+    joints are still open is put back as without the contact projection
+    (``joint_projection.undo_unfollowed_moves``; ``moved``: the worlds of the
+    first round, ``broken``: their joints' broken flags before the step's
+    end)."""
+    worlds = moved
+    for _ in range(contact_projection.ROUNDS - 1):
+        worlds = model.contacts.project_static(model, state, worlds)
+        if worlds is None:
+            break
+        model.joints.positions_moved()
+        model.joints.project_positions(model, state, worlds)
+    model.joints.undo_unfollowed_moves(model, state, model.contacts.projected, broken)
 
 
 def _positions_moved(model, state, constraints):

@@ -1,7 +1,8 @@
-"""States saved from the slow soak (``tests/stability/test_soak.py``: random
-maximum torques on the standing ragdoll, seed 0) just before a step that once
-went wrong, with the motor torques of the steps that follow, so that a fast
-test replays that step instead of the soak's 1,000 steps."""
+"""States saved from runs of random maximum torques on the standing ragdoll
+(``benchmarks.scenes.ragdoll_max_torque``, seed 0: ``soak_*`` from the slow
+soak's 1,000 worlds, ``tests/stability/test_soak.py``; ``maxtorque16_*`` from
+16 worlds) just before a step that once went wrong, with the motor torques of
+that step, so that a fast test replays that step instead of the run."""
 
 from __future__ import annotations
 

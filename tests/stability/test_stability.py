@@ -113,18 +113,14 @@ FAST = {
     "degenerate_coincident_far": (lambda: sc.degenerate_coincident(FAR), 3.0),
 }
 
-#: measured misses of the fast part (python -m pytest tests/stability, this checkout)
-FAST_XFAIL = {
-    "large_dt_ragdoll": "measured: penetration 3.5 cm > 3 cm (anchors 0.2 mm; at SOFT_JOINTS, the defaults before "
-                        "2026-12-04, 4.0 cm and 3.7 cm)",
-}
+#: measured misses of the fast part (python -m pytest tests/stability, this checkout); the
+#: 1/30 s drop's 3.5 cm landing (bound 3) is met since the static contact projection
+FAST_XFAIL = {}
 
 #: measured misses of the full scenes: from ``python -m benchmarks.stability --quick``; every
 #: bound is a maximum over the run (the rest bound over [rest_time, end]), so a miss within
 #: the quick duration is a miss of the full duration too.
-SLOW_XFAIL = {
-    "large_dt_ragdoll": "measured (full run): penetration 3.5 cm > 3 cm (anchors 0.2 mm)",
-}
+SLOW_XFAIL = {}
 
 
 @pytest.mark.parametrize("name", list(FAST))
@@ -176,44 +172,38 @@ def test_rigid_limits_leave_a_random_drop_twitching():
 # ------------------------------------------------------------------ random maximum torques
 def test_max_torque_fast():
     """8 worlds of the standing ragdoll, every joint at ± its maximum torque,
-    90 steps: no NaN, energy within start + motor work, joints within 1 cm;
-    the penetration bound is a known miss. With 2 worlds, as this test ran
-    until 2026-12-05, it met it by chance: 14 of 32 worlds (seeds 0 and 1,
-    16 worlds each) go deeper than 5 cm within these 90 steps, so a change
-    in the last bits of a trajectory failed it about two times in three.
-    The energy bound holds since the motors' work is each step's torque
-    times its joint's turn (``benchmarks.scenes._motor_work``): with a
-    trapezoid rule on the power at the step's ends one of these worlds
-    gained 11 J more than the work counted in its first step. At
-    ``SOFT_JOINTS`` also joints 4.0 cm (the post-stabilisation's slop; 6.6
-    cm without)."""
+    90 steps: no NaN, energy within start + motor work, joints within 1 cm,
+    no limb deeper than 5 cm. Until the static contact projection was on by
+    default (2 cm, ``engine.contact_projection``) limbs went 9.9 cm deep
+    here: 14 of 32 worlds (seeds 0 and 1, 16 worlds each) went deeper than
+    5 cm within these 90 steps. The energy bound holds since the motors'
+    work is each step's torque times its joint's turn
+    (``benchmarks.scenes._motor_work``): with a trapezoid rule on the power at
+    the step's ends one of these worlds gained 11 J more than the work
+    counted in its first step. At ``SOFT_JOINTS`` also joints 4.0 cm (the
+    post-stabilisation's slop; 6.6 cm without)."""
     case = sc.ragdoll_max_torque(num_worlds=8)
-    run_and_check(case, 90 * case.dt, missed_bounds=("penetration",),
-                  known_miss="measured (8 worlds, 90 steps): penetration 9.9 cm > 5 cm; anchors 0.2 mm")
+    run_and_check(case, 90 * case.dt)
 
 
 @pytest.mark.slow
 def test_max_torque_quick_length():
     """The benchmark's quick length: 2,000 steps."""
     case = sc.ragdoll_max_torque()
-    run_and_check(case, 2_000 * case.dt, known_miss="measured (benchmarks.stability --quick): penetration "
-                                                     "10.6 cm > 5 cm within 2,000 steps (anchors 0.2 mm; at "
-                                                     "SOFT_JOINTS 4.0 cm and 14.2 cm)")
+    run_and_check(case, 2_000 * case.dt)
 
 
 @pytest.mark.slow
 def test_max_torque_100k_steps():
     """The long run: 100,000 steps of random maximum torques."""
     case = sc.ragdoll_max_torque()
-    run_and_check(case, 100_000 * case.dt, known_miss="measured: penetration 10.6 cm > 5 cm within the first "
-                                                       "2,000 steps (at SOFT_JOINTS also anchors 4.0 cm)")
+    run_and_check(case, 100_000 * case.dt)
 
 
 @pytest.mark.slow
 def test_max_torque_far():
     case = sc.ragdoll_max_torque(FAR)
-    run_and_check(case, 2_000 * case.dt, known_miss="measured 10 km out: penetration 9.9 cm > 5 cm in 2,000 "
-                                                     "steps (anchors 0.2 mm; at SOFT_JOINTS 4.0 cm and 9.7 cm)")
+    run_and_check(case, 2_000 * case.dt)
 
 
 # ------------------------------------------------------------------ determinism
