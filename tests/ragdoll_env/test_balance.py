@@ -125,8 +125,8 @@ class _FakeContacts:
     def __init__(self, touching):
         self.touching = touching
 
-    def project_static(self, model, state):
-        return False
+    def project_static(self, model, state, worlds=None):
+        return None  # moved nothing
 
     def touching_static(self, state):
         out = np.zeros((state.num_worlds, len(self.names)), dtype=bool)
