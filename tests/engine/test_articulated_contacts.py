@@ -58,7 +58,7 @@ def test_response_keeps_every_joint_and_gives_a_delassus_matrix():
     joint_rows = (np.matmul(Ja, Z[:, a]) + np.matmul(Jb, Z[:, b])) * mask[..., None]
     assert np.abs(joint_rows).max() <= 1e-9 * np.abs(Z).max()
     v = art.valid[0]
-    A = art.A_columns[0].T[np.ix_(v, v)]
+    A = art.A_by_column[:, 0].T[np.ix_(v, v)]
     assert np.abs(A - A.T).max() <= 1e-12 * np.abs(A).max()
     assert np.linalg.eigvalsh(0.5 * (A + A.T)).min() >= -1e-9 * np.abs(A).max()
     assert art.valid.sum() == 3 * rows.valid[art.rows].sum()  # a normal and two friction columns per valid point
@@ -142,7 +142,8 @@ def _sweeps(A, u, lam, gain, bias, isc_lam, one_world):
     by the batch path or (W = 1) the Python-float path; returns u, lam, u_before."""
     W, C = u.shape
     ac = object.__new__(ArticulatedContacts)
-    ac.A_columns, ac.valid, ac.normals = A, np.ones((W, C), dtype=bool), np.arange(0, C, 3)
+    ac.A_by_column = A.transpose(1, 0, 2).copy()  # A[w, i] is column i
+    ac.valid, ac.normals = np.ones((W, C), dtype=bool), np.arange(0, C, 3)
     ac.worlds_at = [W] * (C // 3)  # every world has every column
     ac.m, ac.mu = np.where(np.isfinite(gain), -gain, 0.0), np.full((W, C), 0.6)
     ac.skip_unchanged = bool(np.isfinite(A).all())
