@@ -26,7 +26,8 @@ the joints in the metric:
   velocities change by Z Δλ at once: the joints stay satisfied at velocity
   level, with no joint error for the joint solve to hand back. The sweeps
   are sequential by nature (one Python iteration per column, vectorised over
-  the worlds); a batch of one world runs them on Python floats, the same
+  the worlds); where one world holds points (a batch of one world, or one
+  world of a batch touching the ground), they run on Python floats, the same
   operations in the same order, as numpy's cost per call would dominate.
 
 Z and A are computed once per step at the step's start positions, as the
@@ -111,7 +112,7 @@ class ArticulatedContacts:
         # padded to the largest count, most of A was padding.
         count = np.bincount(pw_batch, minlength=state.num_worlds)
         self.worlds = np.argsort(-count, kind="stable")[:np.count_nonzero(count)]  # batch world of each slot
-        # The batch's arrays are read through views where that order is the batch's own (one world).
+        # The batch's arrays are read through views where that order is the batch's own.
         identity = self.worlds.size == state.num_worlds and bool((self.worlds == np.arange(self.worlds.size)).all())
         self._batch = slice(None) if identity else self.worlds
         slot = np.empty(state.num_worlds, dtype=np.int64)
@@ -237,7 +238,8 @@ class ArticulatedContacts:
         return np.einsum("wk,wck->wc", p.reshape(self.W, self.N * 6), self.Z_columns)
 
     def _apply(self, state, lam):
-        """Velocities += Z λ (every body of each articulation). einsum sums
+        """Velocities += Z λ (every body of each articulation, in the worlds
+        held; the others are left as they are). einsum sums
         each body row over the columns one after the other, in column order
         (as a loop of dv += Z[:, i] λ_i does, bit for bit, and 9 times
         faster at W = 256), so padded columns add exact zeros at the end;
@@ -333,7 +335,7 @@ class ArticulatedContacts:
         return u_before
 
     def _sweep_one_world(self, u, lam, sweep_start, gain, bias, isc_lam):
-        """``_sweep_batch`` for a batch of one world: the same operations in
+        """``_sweep_batch`` where one world holds points: the same operations in
         the same order, on Python floats (IEEE doubles rounded as numpy's
         element-wise ones, no fused multiply-adds), with only the updates of
         u by a column of A in numpy. numpy's per-call cost, paid by every

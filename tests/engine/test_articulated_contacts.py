@@ -137,14 +137,17 @@ def test_batch_replays_bit_for_bit():
         assert np.array_equal(alone.arrays[key][0], runs[0].arrays[key][2]), key
 
 
-def _sweeps(A, u, lam, gain, bias, isc_lam, one_world):
+def _sweeps(A, u, lam, gain, bias, isc_lam, one_world, points=None):
     """One sweep of ArticulatedContacts on given arrays (W, C, C) and (W, C),
-    by the batch path or (W = 1) the Python-float path; returns u, lam, u_before."""
+    by the batch path or (W = 1) the Python-float path; returns u, lam,
+    u_before. ``points``: each world's valid points (most first; default
+    all C / 3), the columns beyond them padding."""
     W, C = u.shape
+    points = np.full(W, C // 3) if points is None else np.asarray(points)
     ac = object.__new__(ArticulatedContacts)
     ac.A_by_column = A.transpose(1, 0, 2).copy()  # A[w, i] is column i
-    ac.valid, ac.normals = np.ones((W, C), dtype=bool), np.arange(0, C, 3)
-    ac.worlds_at = [W] * (C // 3)  # every world has every column
+    ac.valid, ac.normals = np.arange(C)[None, :] < 3 * points[:, None], np.arange(0, C, 3)
+    ac.worlds_at = [int((points > q).sum()) for q in range(C // 3)]  # the worlds with point q
     ac.m, ac.mu = np.where(np.isfinite(gain), -gain, 0.0), np.full((W, C), 0.6)
     ac.skip_unchanged = bool(np.isfinite(A).all())
     ac._one_world_constants = (ac.m[0].tolist(), ac.mu[0].tolist(), ac.normals.tolist())
@@ -189,6 +192,37 @@ def test_a_world_alone_sweeps_as_in_a_batch_bit_for_bit_even_with_non_finite_A()
             overflowed += 1
             assert np.isnan(u_a[0]).any() and np.isnan(u_b[0]).any()
     assert overflowed >= 3
+
+
+def test_worlds_with_fewer_points_sweep_as_alone_bit_for_bit():
+    """Worlds of a batch with 5, 3 and 1 valid points (most first, as
+    ArticulatedContacts holds them): each column's updates run on the worlds
+    that have it, and every world ends its sweep as it does alone, with its
+    own columns only (the Python-float path), bit for bit; the padding keeps
+    impulse 0."""
+    rng = np.random.default_rng(11)
+    points = np.array([5, 3, 1])
+    W, C = points.size, 3 * points.max()
+    for trial in range(20):
+        A, u, lam = np.zeros((W, C, C)), np.zeros((W, C)), np.zeros((W, C))
+        gain, bias = np.zeros((W, C)), np.zeros((W, C))
+        for w, c in enumerate(3 * points):
+            R = rng.normal(size=(c, c))
+            A[w, :c, :c] = R @ R.T / c + np.eye(c)
+            u[w, :c] = rng.normal(size=c)
+            lam[w, :c] = np.abs(rng.normal(size=c)) * rng.integers(0, 2, size=c)
+            gain[w, :c] = -1.0 / np.diag(A[w, :c, :c])
+            bias[w, :c] = rng.normal(size=c) * 0.3
+        isc_lam = None if trial % 2 else 0.1 * lam
+        u_b, lam_b, before_b = _sweeps(A, u, lam, gain, bias, isc_lam, one_world=False, points=points)
+        assert not lam_b[1, 9:].any() and not lam_b[2, 3:].any()
+        for w, c in enumerate(3 * points):
+            alone = (A[w:w + 1, :c, :c], u[w:w + 1, :c], lam[w:w + 1, :c], gain[w:w + 1, :c], bias[w:w + 1, :c],
+                     None if isc_lam is None else isc_lam[w:w + 1, :c])
+            u_a, lam_a, before_a = _sweeps(*alone, one_world=True)
+            assert u_a[0].tobytes() == u_b[w, :c].tobytes()
+            assert lam_a[0].tobytes() == lam_b[w, :c].tobytes()
+            assert before_a[0, ::3].tobytes() == before_b[w, :c:3].tobytes()
 
 
 def test_articulations_closed_by_loops_keep_body_rows_and_the_others_do_not():
@@ -266,13 +300,18 @@ def test_column_velocities_match_the_joint_solve_across_worlds_with_uneven_conta
     the worlds' column counts differ and the columns are padded: with random
     velocities, each world's columns read what J_c gives after the joint
     solve itself (rigid rows, no bias). The lifted world has no columns at
-    all: the response holds only the worlds with a valid point."""
+    all: the response holds only the worlds with a valid point, the one
+    with more points first (the first world's middle box is lifted a little
+    too, so its columns are fewer and padded)."""
     model = scenarios.hinged_boxes(masses=(1.0, 2.0, 3.0), articulated_contacts=True, **RIGID).build()
     state = model.initial_state(3)
     state.position[1, 1:, 2] += 1.0
+    state.position[0, 1, 2] += 0.5
     _, joints, art = _prepared(model, state)
     assert not art.empty
-    assert sorted(art.worlds.tolist()) == [0, 2] and art.valid.sum(axis=1).min() > 0
+    assert art.worlds.tolist() == [2, 0] and min(art.worlds_at) < art.W
+    counts = art.valid.sum(axis=1)
+    assert counts[0] > counts[1] > 0
     rng = np.random.default_rng(1)
     state.velocity[:, 1:] += rng.normal(0.0, 0.5, state.velocity[:, 1:].shape)
     state.angular_velocity[:, 1:] += rng.normal(0.0, 3.0, state.angular_velocity[:, 1:].shape)
