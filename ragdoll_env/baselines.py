@@ -309,6 +309,18 @@ class StandingPD(Controller):
       in front of the heel edges, and backward pushes tipped it over them.
     * An ankle's support terms act only while its foot touches the ground
       (``foot_contacts``): on a lifted foot they flipped it within 0.2 s.
+    * A lifted foot's ankle PD (``lifted_ankle``, its kp and kd scaled by
+      0.25 while ``foot_contacts`` reads 0) acts on the 1 kg foot alone,
+      whose roll inertia about the ankle (about 0.004 kg·m²) puts the full
+      gains past the explicit damper's limit (kd Δt / I ≈ 2.6 > 2 at 60 Hz):
+      the roll torque flipped sign at every control step and the foot came
+      down rolled onto its edge, a wide stance the PD then lost a second or
+      two later (most of its falls after sideways chest pushes). Default
+      pushes, 20 s episodes, falls with 1.0 / 0.25 (2026-12-05): 21 / 12 of
+      320 (eight seed sets of 40, ``BalanceVectorEnv(num_envs=40).reset(seed=S)``,
+      S = 0, 100, ..., 700) and 28 / 9 of 400 in ten other seed sets. In six
+      of those (240 episodes) 0.1, 0.2, 0.25 and 0.5 fell in 22, 9, 9 and
+      23: the foot flopping, or still ringing.
     * Tuned at 30 Hz control on push trials (16 worlds, pushes of 10, 15,
       20 N·s in 8 directions at the chest and the pelvis, worlds standing 4 s
       later): kc, dc = 800, 240 kept 16, 8 and 2 of 16; 400, 160 kept 13, 5
@@ -359,10 +371,12 @@ class StandingPD(Controller):
     gravity, balance: switch the S g + G q and the f terms off.
     load_sharing: False keeps every leg row at half the load (the controller
     before load sharing).
+    lifted_ankle: the factor on a lifted foot's ankle kp and kd (1.0: the
+    controller before 2026-12-05).
     """
 
     def __init__(self, env, gains=None, scale=1.0, com_gains=(1200.0, 400.0), com_target=(-0.02, 0.0),
-                 knee_lock=-0.1, gravity=True, balance=True, load_sharing=True):
+                 knee_lock=-0.1, gravity=True, balance=True, load_sharing=True, lifted_ankle=0.25):
         super().__init__(env)
         if not isinstance(self.task, BalanceTask):
             raise TypeError("StandingPD drives Balance-v0")
@@ -383,6 +397,7 @@ class StandingPD(Controller):
             joint_of.append(joint)
         self.kp, self.kd, self.q_ref = np.array(kp), np.array(kd), np.array(q_ref)
         self.gravity, self.balance, self.load_sharing = bool(gravity), bool(balance), bool(load_sharing)
+        self.lifted_ankle = float(lifted_ankle)
         self.kc, self.dc = (float(v) for v in com_gains)
         self.com_target = np.array([*com_target, 0.0], dtype=float)[:3]
         self.mass = float(np.where(model.dynamic, model.mass, 0.0)[task.humanoid_bodies].sum())
@@ -443,7 +458,9 @@ class StandingPD(Controller):
 
     def _act(self, obs):
         q, qd = obs[:, self._q], obs[:, self._qd]
-        tau = -self.kp * (q - self.q_ref) - self.kd * qd
+        touching = np.concatenate([obs[:, self._feet], np.ones((obs.shape[0], 1))], axis=1)[:, self.ankle_foot]
+        # A lifted foot's ankle PD acts on the foot alone (see the class docstring).
+        tau = np.where(touching > 0, 1.0, self.lifted_ankle) * (-self.kp * (q - self.q_ref) - self.kd * qd)
         field = np.zeros((obs.shape[0], 3))
         if self.balance:
             e = obs[:, self._com] - self.com_target
@@ -461,7 +478,6 @@ class StandingPD(Controller):
         if self.load_sharing:
             support = support * self._leg_loads(legs, q)
         # A foot off the ground carries nothing: its ankle's support torques would only flip it.
-        touching = np.concatenate([obs[:, self._feet], np.ones((obs.shape[0], 1))], axis=1)[:, self.ankle_foot]
         return (tau + support * touching) / self.core.max_torque
 
     def _leg_loads(self, legs, q):

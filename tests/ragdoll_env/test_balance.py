@@ -355,3 +355,47 @@ def test_standing_pd_shares_the_load_to_survive_sideways_pushes(load_sharing):
         obs, _, done, _ = venv.step(pd.act(obs))
         alive &= ~done
     assert alive.all() if load_sharing else not alive.any(), f"standing: {alive}"
+
+
+def test_standing_pd_steadies_a_lifted_foot():
+    """contacts: the sideways pelvis pushes of the load-sharing test lift one
+    foot for 0.5-0.8 s. At full gains its ankle PD, on the 1 kg foot alone
+    (kd Δt / I about 2.6 about the roll axis at 60 Hz, past the explicit
+    damper's limit of 2), flips its roll torque's sign at every control step
+    (measured: 43 of 43 and 48 of 48 lifted steps); at the default quarter
+    gains in 7 of 33 and 11 of 45. The ankle rows of a lifted foot alone
+    change, by the PD part."""
+    from ragdoll_env.sb3 import make_sb3_vec_env
+
+    flip_share = {}
+    for scale in (1.0, 0.25):
+        venv = make_sb3_vec_env("Ragdoll/Balance-v0", num_envs=2, seed=3, push_strength=0.0)
+        core = venv.core
+        layout, names = core.task.obs_layout, list(core.actuator_names)
+        pd = StandingPD(venv, lifted_ankle=scale)
+        rows = [names.index(f"ankle_{s}:swing_z") for s in "lr"]
+        obs = venv.reset()
+        flips = lifted = 0
+        before = None
+        for k in range(int(round(2.5 / core.dt))):
+            if k == int(round(0.67 / core.dt)):
+                for w, side in enumerate((1.0, -1.0)):
+                    core.push(w, core.model.body_index(core.task.humanoid.name("pelvis")), np.array([0.0, 20.0 * side, 0.0]))
+            a = pd.act(obs)
+            now = (a[:, rows], obs[:, layout["foot_contacts"]] == 0)
+            if before is not None:
+                up = now[1] & before[1]
+                flips += int((up & (now[0] * before[0] < 0)).sum())
+                lifted += int(up.sum())
+            before = now
+            obs, _, done, _ = venv.step(a)
+            assert not done.any()
+        flip_share[scale] = flips / lifted
+        assert lifted >= 60, f"the pushes lifted a foot for only {lifted} steps"
+    assert flip_share[1.0] > 0.9 and flip_share[0.25] < 0.35, flip_share
+    obs = venv.reset()[:1].copy()
+    full, lifted_pd = StandingPD(venv, lifted_ankle=1.0), StandingPD(venv)
+    obs[:, layout["foot_contacts"]] = [0.0, 1.0]
+    obs[:, layout["joint_angles"]] += 0.05
+    diff = np.flatnonzero(full.act(obs)[0] != lifted_pd.act(obs)[0])
+    assert [names[k] for k in diff] == [f"ankle_l:{axis}" for axis in ("twist", "swing_y", "swing_z")]
