@@ -377,8 +377,8 @@ def test_standing_pd_steadies_a_lifted_foot():
         obs = venv.reset()
         flips = lifted = 0
         before = None
-        for k in range(int(round(2.5 / core.dt))):
-            if k == int(round(0.67 / core.dt)):
+        for k in range(round(2.5 / core.dt)):
+            if k == round(0.67 / core.dt):
                 for w, side in enumerate((1.0, -1.0)):
                     core.push(w, core.model.body_index(core.task.humanoid.name("pelvis")), np.array([0.0, 20.0 * side, 0.0]))
             a = pd.act(obs)
