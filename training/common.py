@@ -141,12 +141,48 @@ def settings_changes(recorded: dict | None, current: dict) -> dict:
     return {k: (recorded.get(k), v) for k, v in current.items() if k not in recorded or recorded[k] != v}
 
 
+#: Keyword arguments added to a residual's baseline after runs began
+#: training on it, each with the value that acts as the baseline did before:
+#: a run whose residual did not record one was trained with that value
+#: (``StandingPD``'s lifted-foot ankle gains came on 2026-12-05).
+ADDED_BASELINE_KWARGS = {"standing_pd": {"lifted_ankle": 1.0}}
+
+
+def residual_as_trained(residual, env_id):
+    """A run's recorded ``residual`` entry with the baseline keyword
+    arguments it did not record at their ``ADDED_BASELINE_KWARGS`` values
+    (None for none)."""
+    if not isinstance(residual, dict):
+        return residual
+    name = residual.get("baseline")
+    if name == "pd" and env_id == "Ragdoll/Balance-v0":
+        name = "standing_pd"
+    added = ADDED_BASELINE_KWARGS.get(name)
+    if not added:
+        return residual
+    return {**residual, "kwargs": {**added, **(residual.get("kwargs") or {})}}
+
+
+def baseline_kwargs(name, residual) -> dict:
+    """Keyword arguments of the baseline ``name`` beside a run: those of the
+    run's residual when it is built on that baseline (the PD the policy
+    starts from), else none (the defaults)."""
+    if isinstance(residual, dict) and residual.get("baseline") == name:
+        return dict(residual.get("kwargs") or {})
+    return {}
+
+
 def read_run_config(run_dir) -> dict:
+    """A run's config.json, its residual entry as trained (``residual_as_trained``)."""
     p = require_run_dir(run_dir) / CONFIG_FILE
     try:
-        return json.loads(p.read_text())
+        saved = json.loads(p.read_text())
     except Exception as exc:  # noqa: BLE001
         raise TrainingError(f"cannot read {str(p)!r}: {exc}") from exc
+    config = saved.get("config") if isinstance(saved, dict) else None
+    if isinstance(config, dict) and config.get("residual"):
+        config["residual"] = residual_as_trained(config["residual"], saved.get("env_id"))
+    return saved
 
 
 _CKPT = re.compile(rf"^{CHECKPOINT_PREFIX}_(\d+)_steps\.zip$")

@@ -41,7 +41,9 @@ Starting points (RL Baselines3 Zoo, ``hyperparams/ppo.yml``):
   layer of a residual policy, so the first policy is the PD plus
   exploration noise (σ = 0.1 e^-1.6 ≈ 0.02 of each maximum torque; under the
   default pushes the 60 Hz PD plus Gaussian noise of σ 0.005, 0.01 and 0.02
-  fell in 3, 1 and 0 of 40 episodes, the PD alone in 0 of the same 40).
+  fell in 3, 1 and 0 of 40 episodes, the PD alone in 0 of the same 40;
+  measured before the PD's lifted-foot ankle gains of 2026-12-05, which
+  the entry records as the residual's ``kwargs``).
 
 ``--config PATH`` (JSON or YAML) is merged over the entry, key by key (nested
 dicts merged recursively), e.g. ``{"ppo": {"learning_rate": 3e-4}}``; a key
@@ -103,7 +105,8 @@ CONFIGS = {
             # evaluations fell in 62% and 56% of episodes at 300k steps. Bounded to 0.1 of each
             # maximum torque, with twice the transitions per update and half the epochs, its
             # training return stayed flat over 800k steps, its evaluations (16 episodes)
-            # between 0 and 38% falls where the PD falls in 5-12%: no better than the PD.
+            # between 0 and 38% falls where the PD falls in 5-12%: no better than the PD
+            # (all before the PD's lifted-foot gains of 2026-12-05; on them, README's Training).
             # Neither were harder training pushes (10-30 N·s every 1.5-3 s, train_env_kwargs),
             # a legs-only residual at 0.3, nor gSDE exploration (44% falls at 300k), nor a residual
             # whose reach grew with the capture point to 0.5 (3-5 of 16 falls at 200k): README.
@@ -119,7 +122,8 @@ CONFIGS = {
         },
         "normalize": {"norm_obs": True, "norm_reward": True, "clip_obs": 10.0, "gamma": 0.995},
         "env_kwargs": {},
-        "residual": {"baseline": "standing_pd", "scale": 0.1},
+        # Recorded with the run: runs that did not record lifted_ankle step on the PD before it (1.0).
+        "residual": {"baseline": "standing_pd", "scale": 0.1, "kwargs": {"lifted_ankle": 0.25}},
         "eval": {"freq": 100_000, "episodes": 16, "num_envs": 16},
         "checkpoint_freq": 250_000,
     },

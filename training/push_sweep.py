@@ -80,7 +80,8 @@ def sweep(args) -> dict:
         agent.env.close()
         for name in args.baselines:
             venv = _make_venv(env_id, num_envs, args.seed, env_kwargs)
-            results[name] = rollout(venv, make_baseline(name, venv).act, args.episodes)
+            ctrl = make_baseline(name, venv, **C.baseline_kwargs(name, saved["config"].get("residual")))
+            results[name] = rollout(venv, ctrl.act, args.episodes)
             venv.close()
         dt = agent.venv.core.dt  # s per env step
         episode_s = agent.venv.core.max_episode_steps * dt if agent.venv.core.max_episode_steps else None

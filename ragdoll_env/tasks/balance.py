@@ -51,7 +51,9 @@ stiff enough, and under the default pushes it fell in 11 of 20 episodes
 (and in 9 at 60 Hz with the same gains); tuned for 60 Hz it fell in 6 of 120
 in push trials (9 of 120 with the engine of 2026-12-03: 2, 4 and 3 of 40) and
 in 12 of 100 in a 100-episode ``training.evaluate``; at the engine's rigid-joint
-defaults since 2026-12-04, in 15 of 320 (eight seed sets of 40).
+defaults of 2026-12-04, in 15 of 320 (eight seed sets of 40); since its
+lifted-foot ankle gains (2026-12-05), in 12 of the same 320 (21 at the old
+gains with that day's engine).
 Reset: every joint angle component + uniform ±reset_noise_scale (0.02 rad,
 clipped to the limits), soles lowered onto the ground, whole-body horizontal
 velocity uniform ±reset_noise_scale m/s.

@@ -266,3 +266,31 @@ def test_a_setting_added_since_a_run_counts_as_its_old_behaviour():
         "static_contact_projection_depth": (math.inf, 0.02)}
     assert C.settings_changes({"joint_projection_slop": 0.0002}, {**current, "new_field": 1.0}) == {
         "new_field": (None, 1.0)}
+
+
+def test_a_residual_baseline_argument_added_since_a_run_reads_as_trained(tmp_path):
+    """A Balance run whose residual did not record ``lifted_ankle`` (trained
+    before 2026-12-05) is read back on the PD it was trained on (1.0, the
+    full gains); a recorded value is kept; the baseline row beside a run is
+    the PD its residual is built on."""
+    from training.configs import CONFIGS
+
+    C = common
+    run = tmp_path / "old"
+    run.mkdir()
+    old = {"baseline": "standing_pd", "scale": 0.1}
+    saved = {"env_id": "Ragdoll/Balance-v0", "config": {"residual": old}}
+    (run / "config.json").write_text(json.dumps(saved))
+    read = C.read_run_config(run)["config"]["residual"]
+    assert read == {**old, "kwargs": {"lifted_ankle": 1.0}}
+    assert C.residual_as_trained({**old, "kwargs": {"lifted_ankle": 0.25}}, "Ragdoll/Balance-v0")["kwargs"] == {
+        "lifted_ankle": 0.25}
+    assert C.residual_as_trained({"baseline": "pd", "scale": 1.0}, "Ragdoll/Balance-v0")["kwargs"] == {
+        "lifted_ankle": 1.0}
+    assert C.residual_as_trained({"baseline": "lqr", "scale": 1.0}, "Ragdoll/InvertedPendulum-v0") == {
+        "baseline": "lqr", "scale": 1.0}
+    assert C.residual_as_trained(None, "Ragdoll/Balance-v0") is None
+    assert C.baseline_kwargs("standing_pd", read) == {"lifted_ankle": 1.0}
+    assert C.baseline_kwargs("zero", read) == {}
+    # New runs record the value they train with.
+    assert CONFIGS["Ragdoll/Balance-v0"]["residual"]["kwargs"] == {"lifted_ankle": 0.25}
