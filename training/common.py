@@ -148,26 +148,29 @@ def settings_changes(recorded: dict | None, current: dict) -> dict:
 ADDED_BASELINE_KWARGS = {"standing_pd": {"lifted_ankle": 1.0}}
 
 
+def _baseline_name(name, env_id):
+    """The specific name of the baseline ``name`` on ``env_id`` ("pd" is the
+    standing PD on Balance)."""
+    return "standing_pd" if name == "pd" and env_id == "Ragdoll/Balance-v0" else name
+
+
 def residual_as_trained(residual, env_id):
     """A run's recorded ``residual`` entry with the baseline keyword
     arguments it did not record at their ``ADDED_BASELINE_KWARGS`` values
     (None for none)."""
     if not isinstance(residual, dict):
         return residual
-    name = residual.get("baseline")
-    if name == "pd" and env_id == "Ragdoll/Balance-v0":
-        name = "standing_pd"
-    added = ADDED_BASELINE_KWARGS.get(name)
+    added = ADDED_BASELINE_KWARGS.get(_baseline_name(residual.get("baseline"), env_id))
     if not added:
         return residual
     return {**residual, "kwargs": {**added, **(residual.get("kwargs") or {})}}
 
 
-def baseline_kwargs(name, residual) -> dict:
-    """Keyword arguments of the baseline ``name`` beside a run: those of the
-    run's residual when it is built on that baseline (the PD the policy
-    starts from), else none (the defaults)."""
-    if isinstance(residual, dict) and residual.get("baseline") == name:
+def baseline_kwargs(name, residual, env_id) -> dict:
+    """Keyword arguments of the baseline ``name`` beside a run of ``env_id``:
+    those of the run's residual when it is built on that baseline (the PD
+    the policy starts from), else none (the defaults)."""
+    if isinstance(residual, dict) and _baseline_name(residual.get("baseline"), env_id) == _baseline_name(name, env_id):
         return dict(residual.get("kwargs") or {})
     return {}
 

@@ -252,7 +252,7 @@ def evaluate(args) -> dict:
         for name in baseline_names(env_id):
             bvenv = _make_venv(env_id, num_envs, args.seed, env_kwargs)
             try:
-                ctrl = make_baseline(name, bvenv, **C.baseline_kwargs(name, residual))
+                ctrl = make_baseline(name, bvenv, **C.baseline_kwargs(name, residual, env_id))
                 result["baselines"][name] = rollout(bvenv, ctrl.act, args.episodes)
             except Exception as exc:  # noqa: BLE001 - a broken baseline must not hide the agent's figures
                 result["baselines"][name] = {"error": f"{type(exc).__name__}: {exc}"}

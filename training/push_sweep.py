@@ -80,7 +80,7 @@ def sweep(args) -> dict:
         agent.env.close()
         for name in args.baselines:
             venv = _make_venv(env_id, num_envs, args.seed, env_kwargs)
-            ctrl = make_baseline(name, venv, **C.baseline_kwargs(name, saved["config"].get("residual")))
+            ctrl = make_baseline(name, venv, **C.baseline_kwargs(name, saved["config"].get("residual"), env_id))
             results[name] = rollout(venv, ctrl.act, args.episodes)
             venv.close()
         dt = agent.venv.core.dt  # s per env step

@@ -290,7 +290,10 @@ def test_a_residual_baseline_argument_added_since_a_run_reads_as_trained(tmp_pat
     assert C.residual_as_trained({"baseline": "lqr", "scale": 1.0}, "Ragdoll/InvertedPendulum-v0") == {
         "baseline": "lqr", "scale": 1.0}
     assert C.residual_as_trained(None, "Ragdoll/Balance-v0") is None
-    assert C.baseline_kwargs("standing_pd", read) == {"lifted_ankle": 1.0}
-    assert C.baseline_kwargs("zero", read) == {}
+    balance = "Ragdoll/Balance-v0"
+    assert C.baseline_kwargs("standing_pd", read, balance) == {"lifted_ankle": 1.0}
+    assert C.baseline_kwargs("zero", read, balance) == {}
+    assert C.baseline_kwargs("standing_pd", {"baseline": "pd", "kwargs": {"lifted_ankle": 1.0}}, balance) == {
+        "lifted_ankle": 1.0}
     # New runs record the value they train with.
     assert CONFIGS["Ragdoll/Balance-v0"]["residual"]["kwargs"] == {"lifted_ankle": 0.25}
