@@ -36,8 +36,9 @@ contact rows keep their lever arms for the step. There are three columns
 and padded to the batch's largest count C. Only the worlds with a valid
 point are held, most points first, so that the work on a column (Z, A, the
 sweeps) covers the worlds that have it, a prefix (``worlds_at``): at 256
-fallen ragdolls (9-30 points, 18 on average) that and storing A by column
-took the contacts' share of a step from 210 to 145 ms. Memory per world: C x (6 x bodies
+fallen ragdolls (9-30 points, 18 on average) that, with A stored by
+column (below), took the contacts' share of a step from 210 to 145 ms.
+Memory per world: C x (6 x bodies
 + 7 + C) floats for Z, J, A and the per-column arrays; while they are built,
 the tree's substitution holds about five more COLUMN_BLOCK x 6 x bodies and
 A's build about four C x COLUMN_BLOCK. A ragdoll lying
