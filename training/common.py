@@ -100,6 +100,19 @@ def policy_kwargs(kwargs: dict | None) -> dict:
     return out
 
 
+def policy_class(policy, kwargs: dict):
+    """The SB3 policy to build: ``policy`` as given, or for ``MlpPolicy`` with
+    a ``critic_lr_factor`` in its ``kwargs`` the policy whose critic steps at
+    that multiple of the learning rate (:mod:`training.policies`)."""
+    if "critic_lr_factor" not in kwargs:
+        return policy
+    from .policies import CriticRatePolicy
+
+    if policy not in ("MlpPolicy", CriticRatePolicy):
+        raise TrainingError(f"critic_lr_factor is a setting of MlpPolicy, not of {policy!r}")
+    return CriticRatePolicy
+
+
 def require_run_dir(path) -> Path:
     p = Path(path)
     if not p.is_dir():

@@ -337,6 +337,7 @@ def train(args) -> dict:
     ppo_kwargs = dict(cfg["ppo"])
     policy = ppo_kwargs.pop("policy", "MlpPolicy")
     ppo_kwargs["policy_kwargs"] = C.policy_kwargs(ppo_kwargs.get("policy_kwargs"))
+    policy = C.policy_class(policy, ppo_kwargs["policy_kwargs"])
 
     # build everything before writing anything: a bad setting leaves no run behind
     venv, eval_env, norm = _make_envs(env_id, cfg, num_envs, seed, evaluation=cfg["eval"]["freq"] > 0)
