@@ -43,7 +43,10 @@ class CriticRatePolicy(ActorCriticPolicy):
     groups and restores the optimizer's state into them)."""
 
     def __init__(self, *args, critic_lr_factor: float = 1.0, **kwargs):
-        factor = float(critic_lr_factor)
+        try:
+            factor = float(critic_lr_factor)
+        except (TypeError, ValueError):
+            factor = float("nan")
         if not factor > 0.0 or factor == float("inf"):
             raise ValueError(f"critic_lr_factor must be a positive finite number, got {critic_lr_factor!r}")
         optimizer_class = kwargs.get("optimizer_class", torch.optim.Adam)

@@ -73,7 +73,7 @@ def test_a_run_with_a_critic_rate_resumes_with_its_optimizer_groups(tmp_path, ti
     assert len(state) == sum(len(g["params"]) for g in groups)  # every parameter has its Adam moments
 
 
-@pytest.mark.parametrize("factor", [0.0, -1.0, float("inf"), float("nan")])
+@pytest.mark.parametrize("factor", [0.0, -1.0, float("inf"), float("nan"), "ten"])
 def test_a_bad_critic_rate_is_refused(factor):
     with pytest.raises(ValueError, match="critic_lr_factor"):
         _first_step(factor)
