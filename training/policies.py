@@ -4,11 +4,10 @@ SB3 trains actor and critic with one Adam optimizer at one learning rate.
 A residual policy on a tuned controller needs a small actor step (Balance:
 3e-5; at 2.5e-4 the residual wrecked the standing PD within minutes), and
 with the actor and critic in separate networks Adam's step per parameter is
-about the learning rate whatever ``vf_coef`` scales the value loss by: the
-critic then fits at 3e-5 too, and for hundreds of thousands of steps gives
-advantages of a value function that explains little of the returns, along
-which the actor drifts. ``critic_lr_factor`` (in ``policy_kwargs``) lets the
-critic step at that multiple of the (scheduled) learning rate.
+about the learning rate whatever ``vf_coef`` scales the value loss by, so
+the critic fits at that small rate too. ``critic_lr_factor`` (in
+``policy_kwargs``) lets the critic step at a multiple of the (scheduled)
+learning rate; what it changed for Balance is in ``training.configs``.
 """
 
 from __future__ import annotations
