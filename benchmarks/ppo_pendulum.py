@@ -85,7 +85,7 @@ def train_until_solved(engine: str, seed: int, max_steps: int, eval_freq: int, e
     from stable_baselines3.common.logger import Logger
     from stable_baselines3.common.vec_env import VecNormalize
 
-    from training.common import policy_kwargs
+    from training.common import ppo_arguments
 
     torch.set_num_threads(1)
     cfg = _ppo_config()
@@ -93,9 +93,7 @@ def train_until_solved(engine: str, seed: int, max_steps: int, eval_freq: int, e
     venv, eval_venv = _make_venvs(engine, num_envs, int(cfg["eval"]["num_envs"]), seed)
     norm = dict(cfg["normalize"])
     venv = VecNormalize(venv, **norm)
-    ppo = dict(cfg["ppo"])
-    policy = ppo.pop("policy")
-    ppo["policy_kwargs"] = policy_kwargs(ppo.get("policy_kwargs"))
+    policy, ppo = ppo_arguments(cfg["ppo"])
     model = PPO(policy, venv, seed=seed, device="cpu", verbose=0, **ppo)
     model.set_logger(Logger(folder=None, output_formats=[]))  # SB3's default makes a /tmp/SB3-<date> folder per run
     result = {"solved_at_steps": None, "solved_at_wall_s": None, "final_eval_return": None}

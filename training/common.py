@@ -100,17 +100,26 @@ def policy_kwargs(kwargs: dict | None) -> dict:
     return out
 
 
-def policy_class(policy, kwargs: dict):
-    """The SB3 policy to build: ``policy`` as given, or for ``MlpPolicy`` with
-    a ``critic_lr_factor`` in its ``kwargs`` the policy whose critic steps at
-    that multiple of the learning rate (:mod:`training.policies`)."""
-    if "critic_lr_factor" not in kwargs:
-        return policy
-    from .policies import CriticRatePolicy
+def ppo_arguments(ppo: dict) -> tuple:
+    """(policy, keyword arguments) for ``stable_baselines3.PPO`` from a
+    config's ``ppo`` mapping: ``policy`` (default "MlpPolicy") taken out,
+    ``activation_fn`` names turned into torch classes, and for ``MlpPolicy``
+    with a ``critic_lr_factor`` in its ``policy_kwargs`` the policy whose
+    critic steps at that multiple of the learning rate
+    (:mod:`training.policies`; a null factor counts as not given)."""
+    kwargs = dict(ppo)
+    policy = kwargs.pop("policy", "MlpPolicy")
+    pk = policy_kwargs(kwargs.get("policy_kwargs"))
+    if pk.get("critic_lr_factor", 0) is None:
+        del pk["critic_lr_factor"]
+    if "critic_lr_factor" in pk:
+        from .policies import CriticRatePolicy
 
-    if policy not in ("MlpPolicy", CriticRatePolicy):
-        raise TrainingError(f"critic_lr_factor is a setting of MlpPolicy, not of {policy!r}")
-    return CriticRatePolicy
+        if policy not in ("MlpPolicy", CriticRatePolicy):
+            raise TrainingError(f"critic_lr_factor is a setting of MlpPolicy, not of {policy!r}")
+        policy = CriticRatePolicy
+    kwargs["policy_kwargs"] = pk
+    return policy, kwargs
 
 
 def require_run_dir(path) -> Path:
@@ -261,6 +270,9 @@ def load_ppo(path, env=None, device="cpu", custom_objects=None):
         raise TrainingError(f"model file {str(p)!r} does not exist")
     try:
         return PPO.load(str(p), env=env, device=device, custom_objects=custom_objects)
+    except ImportError as exc:  # a policy class pickled by module path (training.policies) that is not there
+        raise TrainingError(f"cannot load model {str(p)!r}: its policy class is not importable here "
+                            f"({type(exc).__name__}: {exc}); install this package's training extra") from exc
     except Exception as exc:  # noqa: BLE001 - zipfile/pickle/torch errors become one message
         raise TrainingError(f"cannot load model {str(p)!r}: the file is corrupted or not a "
                             f"stable-baselines3 PPO model ({type(exc).__name__}: {exc})") from exc

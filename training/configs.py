@@ -108,21 +108,20 @@ CONFIGS = {
             # maximum torque, with twice the transitions per update and half the epochs, its
             # training return stayed flat over 800k steps, its evaluations (16 episodes)
             # between 0 and 38% falls where the PD falls in 5-12%: no better than the PD
-            # (all before the PD's lifted-foot gains of 2026-12-05; on them, README's Training).
+            # (all before the PD's lifted-foot gains of 2026-12-05; on them, docs/balance_training.md).
             # Neither were harder training pushes (10-30 N·s every 1.5-3 s, train_env_kwargs),
             # a legs-only residual at 0.3, nor gSDE exploration (44% falls at 300k), nor a residual
-            # whose reach grew with the capture point to 0.5 (3-5 of 16 falls at 200k): README.
+            # whose reach grew with the capture point to 0.5 (3-5 of 16 falls at 200k):
+            # docs/balance_training.md.
             "learning_rate": 3e-5,
             "target_kl": 0.01,
             "clip_range": 0.2,
             "ent_coef": 0.0,
             "vf_coef": 0.5,
             "max_grad_norm": 0.5,
-            # σ e^-1.6 = 0.2 of the residual's range, 0.02 of each maximum torque.
-            # The critic at 10x the actor's rate (3e-4, training.policies): seed 0, 30 min, its best
-            # model (200k) fell in 4 of 200 default-push episodes, as the PD, and at 500k in 6 of 100
-            # where the run with the critic at 3e-5 fell in 23 of 200 (best model, 500k) and 10 of
-            # 100 (500k); its explained variance was no higher (medians 0.2-0.6 over 100k-600k).
+            # σ e^-1.6 = 0.2 of the residual's range, 0.02 of each maximum torque. The critic at
+            # 10x the actor's rate (3e-4, training.policies): its best model falls as often as the
+            # PD, the critic at 3e-5 gave one that fell more (docs/balance_training.md).
             "policy_kwargs": {"net_arch": {"pi": [256, 256], "vf": [256, 256]}, "activation_fn": "relu",
                               "log_std_init": -1.6, "ortho_init": True, "critic_lr_factor": 10},
         },

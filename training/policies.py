@@ -7,7 +7,9 @@ with the actor and critic in separate networks Adam's step per parameter is
 about the learning rate whatever ``vf_coef`` scales the value loss by, so
 the critic fits at that small rate too. ``critic_lr_factor`` (in
 ``policy_kwargs``) lets the critic step at a multiple of the (scheduled)
-learning rate; what it changed for Balance is in ``training.configs``.
+learning rate; what it changed for Balance is in ``docs/balance_training.md``.
+Saved models name this class by its module path (``training.policies``),
+which must stay where it is for them to load.
 """
 
 from __future__ import annotations
@@ -37,9 +39,11 @@ class CriticRatePolicy(ActorCriticPolicy):
     """``MlpPolicy`` with the critic (its value layers and value head) in its
     own Adam parameter group stepping at ``critic_lr_factor`` times the
     learning rate; the actor, its log std and any shared layers at the
-    learning rate itself. Saved and loaded like any SB3 policy (the factor is
-    one of its constructor parameters, so ``--resume`` rebuilds the same
-    groups and restores the optimizer's state into them)."""
+    learning rate itself (a value-side features extractor of its own, with
+    ``share_features_extractor=False``, stays with the actor: the default
+    flatten extractor has no parameters). Saved and loaded like any SB3
+    policy: ``PPO.load`` builds it from the saved ``policy_kwargs``, so with
+    the same groups, and restores the optimizer's state into them."""
 
     def __init__(self, *args, critic_lr_factor: float = 1.0, **kwargs):
         try:
@@ -56,7 +60,8 @@ class CriticRatePolicy(ActorCriticPolicy):
 
     @property
     def critic_lr_factor(self) -> float:
-        return self._critic_lr_factor
+        """The critic group's factor as the optimizer holds it (restored with its state on load)."""
+        return float(self.optimizer.param_groups[1]["lr_factor"])
 
     def critic_parameters(self) -> list:
         """The value layers' and the value head's parameters."""

@@ -248,8 +248,10 @@ def _save_atomic(save, path: Path) -> None:
 def _save_checkpoint(model, vecnorm, run: Path, steps: int, replace: bool = False) -> Path:
     """The model and its VecNormalize statistics as the periodic checkpoints
     are saved (what --resume loads), the statistics first; returns the model's
-    path. A checkpoint of the same step count is kept unless ``replace`` (at
-    Ctrl-C, which may have cut the periodic one short)."""
+    path. A checkpoint of the same step count is kept unless ``replace``: the
+    end of a session replaces it, as SB3's CheckpointCallback saves during
+    the rollout's last step, before PPO's update on that rollout (a resume
+    from it would lose that update and the optimizer's moments of it)."""
     ckdir = run / C.CHECKPOINT_DIR
     ckdir.mkdir(exist_ok=True)
     path = ckdir / f"{C.CHECKPOINT_PREFIX}_{steps}_steps.zip"
@@ -334,10 +336,15 @@ def train(args) -> dict:
               f"unchanged (continue it with --timesteps N, N > {done})")
         return _stored_summary(run, env_id, done, saved["timesteps"])
     cfg["num_envs"] = num_envs
-    ppo_kwargs = dict(cfg["ppo"])
-    policy = ppo_kwargs.pop("policy", "MlpPolicy")
-    ppo_kwargs["policy_kwargs"] = C.policy_kwargs(ppo_kwargs.get("policy_kwargs"))
-    policy = C.policy_class(policy, ppo_kwargs["policy_kwargs"])
+    policy, ppo_kwargs = C.ppo_arguments(cfg["ppo"])
+    if args.resume:
+        # The model's own settings (its policy, network, critic rate) come from its file.
+        fixed = sorted(k for k in cfg["ppo"] if k not in RESUMABLE_PPO_KEYS
+                       and cfg["ppo"][k] != (saved["config"].get("ppo") or {}).get(k))
+        if fixed:
+            raise C.TrainingError(f"--resume {str(run)!r}: {', '.join(fixed)} cannot change once a run has a "
+                                  f"model; a --config given with --resume may change "
+                                  f"{', '.join(RESUMABLE_PPO_KEYS)}")
 
     # build everything before writing anything: a bad setting leaves no run behind
     venv, eval_env, norm = _make_envs(env_id, cfg, num_envs, seed, evaluation=cfg["eval"]["freq"] > 0)
@@ -410,7 +417,7 @@ def train(args) -> dict:
         end_steps = int(model.num_timesteps)
         _save_atomic(vecnorm.save, run / C.FINAL_VECNORM)
         _save_atomic(model.save, run / C.FINAL_MODEL)
-        ckpt = _save_checkpoint(model, vecnorm, run, end_steps, replace=interrupted)
+        ckpt = _save_checkpoint(model, vecnorm, run, end_steps, replace=True)
         wall = time.time() - started
         sessions.append({"started": start_stamp, "start_timesteps": start_steps, "end_timesteps": end_steps,
                          "wall_time_s": round(wall, 3), "resumed_from": resumed_from, "interrupted": interrupted})

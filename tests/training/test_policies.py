@@ -20,14 +20,16 @@ def _first_step(factor, lr=1e-3):
     from training.policies import CriticRatePolicy
 
     venv = make_sb3_vec_env(ENV, num_envs=2, seed=0, max_episode_steps=50)
-    model = PPO(CriticRatePolicy, venv, n_steps=32, batch_size=64, n_epochs=1, learning_rate=lr, seed=0,
-                device="cpu", policy_kwargs={"critic_lr_factor": factor, "net_arch": {"pi": [8], "vf": [8]},
-                               "optimizer_kwargs": {"eps": 1e-16}})
-    policy = model.policy
-    actor = [p.detach().clone() for p in train.actor_parameters(policy)]
-    critic = [p.detach().clone() for p in policy.critic_parameters()]
-    model.learn(64)  # one rollout of 2 x 32 steps, one batch, one optimizer step
-    venv.close()
+    try:
+        model = PPO(CriticRatePolicy, venv, n_steps=32, batch_size=64, n_epochs=1, learning_rate=lr, seed=0,
+                    device="cpu", policy_kwargs={"critic_lr_factor": factor, "net_arch": {"pi": [8], "vf": [8]},
+                                                 "optimizer_kwargs": {"eps": 1e-16}})
+        policy = model.policy
+        actor = [p.detach().clone() for p in train.actor_parameters(policy)]
+        critic = [p.detach().clone() for p in policy.critic_parameters()]
+        model.learn(64)  # one rollout of 2 x 32 steps, one batch, one optimizer step
+    finally:
+        venv.close()
     return policy, actor, critic, torch
 
 
@@ -39,6 +41,12 @@ def test_the_critic_steps_at_its_factor_times_the_learning_rate(factor):
     by factor × lr."""
     lr = 1e-3
     policy, actor, critic, torch = _first_step(factor, lr)
+    # the two groups are the actor's and the critic's parameters, all of them, each once
+    by_name = dict(policy.named_parameters())
+    critic_names = {n for n in by_name if n.startswith(("mlp_extractor.value_net.", "value_net."))}
+    groups = [{id(p) for p in g["params"]} for g in policy.optimizer.param_groups]
+    assert groups[1] == {id(by_name[n]) for n in critic_names}
+    assert groups[0] == {id(p) for n, p in by_name.items() if n not in critic_names}
     for before, now, rate in ((actor, train.actor_parameters(policy), lr),
                               (critic, policy.critic_parameters(), factor * lr)):
         step = torch.cat([(p.detach() - q).abs().flatten() for p, q in zip(now, before)]).numpy()
@@ -71,6 +79,13 @@ def test_a_run_with_a_critic_rate_resumes_with_its_optimizer_groups(tmp_path, ti
     assert [g["lr_factor"] for g in groups] == [1.0, 4.0]
     state = model.policy.optimizer.state_dict()["state"]
     assert len(state) == sum(len(g["params"]) for g in groups)  # every parameter has its Adam moments
+    # 8 Adam steps a rollout (256 transitions, batches of 64, 2 epochs), one rollout a session:
+    # the resumed session continued the first one's moments
+    assert {int(s["step"]) for s in state.values()} == {16}
+
+    path.write_text(json.dumps({"ppo": {"policy_kwargs": {"critic_lr_factor": 2.0}}}))
+    with pytest.raises(SystemExit, match="policy_kwargs cannot change"):
+        train.main(["--resume", str(run), "--timesteps", "768", "--config", str(path), "--no-progress-bar"])
 
 
 @pytest.mark.parametrize("factor", [0.0, -1.0, float("inf"), float("nan"), "ten"])
@@ -79,7 +94,12 @@ def test_a_bad_critic_rate_is_refused(factor):
         _first_step(factor)
 
 
-def test_a_critic_rate_needs_the_mlp_policy():
+def test_a_critic_rate_needs_the_mlp_policy_and_null_is_none():
+    from training.policies import CriticRatePolicy
+
     with pytest.raises(common.TrainingError, match="critic_lr_factor.*CnnPolicy"):
-        common.policy_class("CnnPolicy", {"critic_lr_factor": 10.0})
-    assert common.policy_class("MlpPolicy", {}) == "MlpPolicy"
+        common.ppo_arguments({"policy": "CnnPolicy", "policy_kwargs": {"critic_lr_factor": 10.0}})
+    assert common.ppo_arguments({"policy_kwargs": {"critic_lr_factor": 10.0}})[0] is CriticRatePolicy
+    # a --config with a null factor gives SB3's own MlpPolicy, one Adam rate (Balance before 2026-12-05 evening)
+    policy, kwargs = common.ppo_arguments({"n_steps": 8, "policy_kwargs": {"critic_lr_factor": None}})
+    assert policy == "MlpPolicy" and kwargs == {"n_steps": 8, "policy_kwargs": {}}

@@ -54,11 +54,18 @@ def test_tiny_run_writes_model_summary_and_evaluates(tiny_run, tmp_path):
 
 
 def test_resume_continues_the_step_count(tiny_run, tmp_path, tiny_config):
+    import torch
     from stable_baselines3 import PPO
 
     run = tmp_path / "resumed"
     shutil.copytree(tiny_run, run)
     before = PPO.load(str(run / "final_model.zip"), device="cpu").num_timesteps
+    # the session's last checkpoint is its final model, after PPO's update on the last rollout
+    # (SB3's CheckpointCallback saved one at that step count before the update)
+    last, final = (PPO.load(str(p), device="cpu").policy for p in (common.checkpoints(run)[-1][1],
+                                                                   run / "final_model.zip"))
+    assert all(torch.equal(a, b) for a, b in zip(last.parameters(), final.parameters()))
+    assert last.optimizer.state_dict()["state"][0]["step"] == final.optimizer.state_dict()["state"][0]["step"]
     summary = train.main(["--resume", str(run), "--timesteps", "1024", "--no-progress-bar"])
     assert before == 512
     assert summary["num_timesteps"] == 1024 > before
