@@ -80,9 +80,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _make_callbacks(run: Path, cfg: dict, num_envs: int, eval_env, history: dict | None) -> list:
-    """The CheckpointCallback and EvalCallback of a session (each left out when
+    """The checkpoint callback and EvalCallback of a session (each left out when
     its frequency is 0); ``history`` (on resume) keeps the earlier evaluations."""
-    from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback, EvalCallback
+    from stable_baselines3.common.callbacks import BaseCallback, EvalCallback
 
     class SaveVecNormalizeOnBest(BaseCallback):
         """Saves the training VecNormalize stats next to best_model.zip."""
@@ -93,11 +93,33 @@ def _make_callbacks(run: Path, cfg: dict, num_envs: int, eval_env, history: dict
                 vn.save(str(run / C.BEST_VECNORM))
             return True
 
+    class CheckpointAfterUpdate(BaseCallback):
+        """Every ``freq`` timesteps a checkpoint (``_save_checkpoint``), taken
+        at the start of the next rollout: after PPO's update on the rollout
+        that reached the step count, so that the model, its optimizer's
+        moments and its VecNormalize statistics are those a resume goes on
+        from. (SB3's CheckpointCallback saves within the rollout's last step,
+        before that update, which a resume from it then never makes.)"""
+
+        def __init__(self, freq: int):
+            super().__init__()
+            self.freq = freq
+            self.next = None
+
+        def _on_rollout_start(self) -> None:
+            if self.next is None:  # the session's first rollout: the next multiple of freq after the start
+                self.next = (self.num_timesteps // self.freq + 1) * self.freq
+            elif self.num_timesteps >= self.next:
+                _save_checkpoint(self.model, self.model.get_vec_normalize_env(), run, self.num_timesteps,
+                                 replace=True)
+                self.next = (self.num_timesteps // self.freq + 1) * self.freq
+
+        def _on_step(self) -> bool:
+            return True
+
     callbacks = []
     if cfg["checkpoint_freq"] > 0:
-        callbacks.append(CheckpointCallback(save_freq=max(int(cfg["checkpoint_freq"]) // num_envs, 1),
-                                            save_path=str(run / C.CHECKPOINT_DIR), name_prefix=C.CHECKPOINT_PREFIX,
-                                            save_vecnormalize=True))
+        callbacks.append(CheckpointAfterUpdate(int(cfg["checkpoint_freq"])))
     if cfg["eval"]["freq"] > 0:
         ev = EvalCallback(eval_env, callback_on_new_best=SaveVecNormalizeOnBest(),
                           n_eval_episodes=int(cfg["eval"]["episodes"]),
@@ -248,10 +270,7 @@ def _save_atomic(save, path: Path) -> None:
 def _save_checkpoint(model, vecnorm, run: Path, steps: int, replace: bool = False) -> Path:
     """The model and its VecNormalize statistics as the periodic checkpoints
     are saved (what --resume loads), the statistics first; returns the model's
-    path. A checkpoint of the same step count is kept unless ``replace``: the
-    end of a session replaces it, as SB3's CheckpointCallback saves during
-    the rollout's last step, before PPO's update on that rollout (a resume
-    from it would lose that update and the optimizer's moments of it)."""
+    path. A checkpoint of the same step count is kept unless ``replace``."""
     ckdir = run / C.CHECKPOINT_DIR
     ckdir.mkdir(exist_ok=True)
     path = ckdir / f"{C.CHECKPOINT_PREFIX}_{steps}_steps.zip"

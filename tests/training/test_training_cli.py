@@ -61,11 +61,16 @@ def test_resume_continues_the_step_count(tiny_run, tmp_path, tiny_config):
     shutil.copytree(tiny_run, run)
     before = PPO.load(str(run / "final_model.zip"), device="cpu").num_timesteps
     # the session's last checkpoint is its final model, after PPO's update on the last rollout
-    # (SB3's CheckpointCallback saved one at that step count before the update)
+    # (SB3's CheckpointCallback saved one at that step count before the update), and the one
+    # before it was taken after its rollout's update: Adam had made 8 steps (one rollout of 4 x 64
+    # transitions in batches of 64, 2 epochs), not 0
     last, final = (PPO.load(str(p), device="cpu").policy for p in (common.checkpoints(run)[-1][1],
                                                                    run / "final_model.zip"))
     assert all(torch.equal(a, b) for a, b in zip(last.parameters(), final.parameters()))
     assert last.optimizer.state_dict()["state"][0]["step"] == final.optimizer.state_dict()["state"][0]["step"]
+    assert [c[0] for c in common.checkpoints(run)] == [256, 512]
+    first = PPO.load(str(common.checkpoints(run)[0][1]), device="cpu").policy
+    assert int(first.optimizer.state_dict()["state"][0]["step"]) == 8
     summary = train.main(["--resume", str(run), "--timesteps", "1024", "--no-progress-bar"])
     assert before == 512
     assert summary["num_timesteps"] == 1024 > before
