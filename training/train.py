@@ -110,8 +110,7 @@ def _make_callbacks(run: Path, cfg: dict, num_envs: int, eval_env, history: dict
             if self.next is None:  # the session's first rollout: the next multiple of freq after the start
                 self.next = (self.num_timesteps // self.freq + 1) * self.freq
             elif self.num_timesteps >= self.next:
-                _save_checkpoint(self.model, self.model.get_vec_normalize_env(), run, self.num_timesteps,
-                                 replace=True)
+                _save_checkpoint(self.model, self.model.get_vec_normalize_env(), run, self.num_timesteps)
                 self.next = (self.num_timesteps // self.freq + 1) * self.freq
 
         def _on_step(self) -> bool:
@@ -267,16 +266,15 @@ def _save_atomic(save, path: Path) -> None:
     os.replace(tmp, path)
 
 
-def _save_checkpoint(model, vecnorm, run: Path, steps: int, replace: bool = False) -> Path:
-    """The model and its VecNormalize statistics as the periodic checkpoints
-    are saved (what --resume loads), the statistics first; returns the model's
-    path. A checkpoint of the same step count is kept unless ``replace``."""
+def _save_checkpoint(model, vecnorm, run: Path, steps: int) -> Path:
+    """The model and its VecNormalize statistics as a checkpoint (what
+    --resume loads), the statistics first, replacing any of the same step
+    count; returns the model's path."""
     ckdir = run / C.CHECKPOINT_DIR
     ckdir.mkdir(exist_ok=True)
     path = ckdir / f"{C.CHECKPOINT_PREFIX}_{steps}_steps.zip"
-    if replace or not path.exists():
-        _save_atomic(vecnorm.save, ckdir / f"{C.CHECKPOINT_PREFIX}_vecnormalize_{steps}_steps.pkl")
-        _save_atomic(model.save, path)
+    _save_atomic(vecnorm.save, ckdir / f"{C.CHECKPOINT_PREFIX}_vecnormalize_{steps}_steps.pkl")
+    _save_atomic(model.save, path)
     return path
 
 
@@ -436,7 +434,7 @@ def train(args) -> dict:
         end_steps = int(model.num_timesteps)
         _save_atomic(vecnorm.save, run / C.FINAL_VECNORM)
         _save_atomic(model.save, run / C.FINAL_MODEL)
-        ckpt = _save_checkpoint(model, vecnorm, run, end_steps, replace=True)
+        ckpt = _save_checkpoint(model, vecnorm, run, end_steps)
         wall = time.time() - started
         sessions.append({"started": start_stamp, "start_timesteps": start_steps, "end_timesteps": end_steps,
                          "wall_time_s": round(wall, 3), "resumed_from": resumed_from, "interrupted": interrupted})
