@@ -120,7 +120,9 @@ def print_rows(rows, header=True) -> None:
         print(f"{r['strength']:>6.1f}  {r['controller']:<12}{r['fall_rate']:>10.2f}{length:>14}{pushes:>17}", flush=True)
 
 
-def plot_sweep(result, path) -> Path:
+def plot_sweep(result, path, ylabel=None, xlabel="push impulse (N·s), every push of the episode") -> Path:
+    """Fall rate against push strength, a line per controller, as a PNG at
+    ``path``; ``ylabel`` by default names the episodes."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -130,9 +132,11 @@ def plot_sweep(result, path) -> Path:
     for name in dict.fromkeys(r["controller"] for r in result["rows"]):
         pts = [(r["strength"], r["fall_rate"]) for r in result["rows"] if r["controller"] == name]
         ax.plot(*zip(*pts), marker="o", label=name)
-    ax.set_xlabel("push impulse (N·s), every push of the episode")
-    length = f" × {result['episode_s']:g} s" if result.get("episode_s") else " episodes"
-    ax.set_ylabel(f"fall rate over {result['episodes']}{length}")
+    ax.set_xlabel(xlabel)
+    if ylabel is None:
+        length = f" × {result['episode_s']:g} s" if result.get("episode_s") else " episodes"
+        ylabel = f"fall rate over {result['episodes']}{length}"
+    ax.set_ylabel(ylabel)
     ax.set_ylim(-0.03, 1.03)
     ax.grid(alpha=0.3)
     ax.legend()

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from training import common, evaluate, plot, push_sweep, train
+from training import common, evaluate, plot, push_sweep, push_trials, train
 from training.configs import CONFIGS, KEYS, check_override
 
 ENV = "Ragdoll/InvertedPendulum-v0"
@@ -172,6 +172,7 @@ def test_sigint_exits_130_without_traceback(tmp_path, tiny):
     (evaluate.build_parser, ["RUN", "--episodes", "0"]),
     (push_sweep.build_parser, ["RUN", "--num-envs", "0"]),
     (push_sweep.build_parser, ["RUN", "--episodes", "-2"]),
+    (push_trials.build_parser, ["RUN", "--directions", "0"]),
     (plot.build_parser, ["RUN", "--window", "0"]),
 ])
 def test_non_positive_counts_are_argparse_errors(parser, argv, capsys):

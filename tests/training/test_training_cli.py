@@ -203,7 +203,25 @@ def test_bad_residual_config_is_a_clear_error(tmp_path):
     assert not (tmp_path / "x").exists()  # checked before the run directory is made
 
 
-def test_push_sweep_rows_for_agent_and_baselines(tmp_path):
+@pytest.fixture(scope="module")
+def tiny_balance_run(tmp_path_factory):
+    """A residual Balance run of 64 steps, 3 s episodes, a push every 0.5 s."""
+    from ragdoll_env.tasks import BalanceTask
+
+    step_s = BalanceTask.dt * BalanceTask.frame_skip
+    cfg = {"env_kwargs": {"max_episode_steps": int(round(3.0 / step_s)), "push_interval": [0.5, 0.5]},
+           "ppo": {"n_steps": 32, "batch_size": 64, "n_epochs": 1},
+           "eval": {"freq": 10_000, "episodes": 1, "num_envs": 1}, "checkpoint_freq": 10_000}
+    tmp = tmp_path_factory.mktemp("balance")
+    path = tmp / "bal.json"
+    path.write_text(json.dumps(cfg))
+    run = tmp / "bal"
+    train.main(["Ragdoll/Balance-v0", "--timesteps", "64", "--num-envs", "2", "--seed", "0", "--out", str(run),
+                "--config", str(path), "--no-progress-bar"])
+    return run
+
+
+def test_push_sweep_rows_for_agent_and_baselines(tiny_balance_run, tmp_path):
     """A tiny residual Balance run: the sweep rolls the agent and the PD out
     at each strength, counting the pushes it gave."""
     from training import push_sweep
@@ -211,14 +229,7 @@ def test_push_sweep_rows_for_agent_and_baselines(tmp_path):
     from ragdoll_env.tasks import BalanceTask
 
     step_s = BalanceTask.dt * BalanceTask.frame_skip
-    cfg = {"env_kwargs": {"max_episode_steps": int(round(3.0 / step_s)), "push_interval": [0.5, 0.5]},
-           "ppo": {"n_steps": 32, "batch_size": 64, "n_epochs": 1},
-           "eval": {"freq": 10_000, "episodes": 1, "num_envs": 1}, "checkpoint_freq": 10_000}
-    path = tmp_path / "bal.json"
-    path.write_text(json.dumps(cfg))
-    run = tmp_path / "bal"
-    train.main(["Ragdoll/Balance-v0", "--timesteps", "64", "--num-envs", "2", "--seed", "0", "--out", str(run),
-                "--config", str(path), "--no-progress-bar"])
+    run = tiny_balance_run
     out, png = tmp_path / "sweep.json", tmp_path / "sweep.png"
     res = push_sweep.main([str(run), "--strengths", "0", "15", "--episodes", "2", "--baselines", "standing_pd",
                            "--json", str(out), "--plot", str(png)])
@@ -235,11 +246,35 @@ def test_push_sweep_rows_for_agent_and_baselines(tmp_path):
     assert res["residual"]["baseline"] == "standing_pd"
 
 
-def test_push_sweep_needs_a_balance_run(tiny_run):
-    from training import push_sweep
+def test_push_trials_weak_pushes_are_survived_and_strong_ones_topple(tiny_balance_run, tmp_path):
+    """One push per world from four headings at the chest: at 5 N·s (the
+    capture point moves 2 cm) neither the agent nor the PD falls; at 80 N·s
+    (about 34 cm, beyond any foot) every world falls within 2 s; the JSON
+    holds the rows and the plot is written."""
+    from training import push_trials
+
+    out, png = tmp_path / "trials.json", tmp_path / "trials.png"
+    res = push_trials.main([str(tiny_balance_run), "--strengths", "5", "80", "--directions", "4", "--bodies",
+                            "chest", "--settle", "0.2", "--watch", "2", "--json", str(out), "--plot", str(png)])
+    assert json.loads(out.read_text())["rows"] == res["rows"] and png.stat().st_size > 1000
+    assert [(r["strength"], r["controller"], r["trials"]) for r in res["rows"]] == [
+        (5.0, "agent", 4), (5.0, "standing_pd", 4), (80.0, "agent", 4), (80.0, "standing_pd", 4)]
+    for r in res["rows"]:
+        assert r["fell"]["chest"] == ("...." if r["strength"] == 5 else "XXXX"), r
+    assert res["headings_deg"] == [0.0, 90.0, 180.0, 270.0]
+    with pytest.raises(SystemExit, match="no body named 'nose'"):
+        push_trials.main([str(tiny_balance_run), "--strengths", "5", "--directions", "1", "--bodies", "nose"])
+
+
+def test_push_sweep_and_trials_need_a_balance_run(tiny_run):
+    from training import push_sweep, push_trials
 
     with pytest.raises(SystemExit, match="needs a Ragdoll/Balance-v0 run"):
         push_sweep.main([str(tiny_run), "--episodes", "1"])
+    with pytest.raises(SystemExit, match="need a Ragdoll/Balance-v0 run"):
+        push_trials.main([str(tiny_run), "--directions", "1"])
+    with pytest.raises(SystemExit, match="--watch > 0"):
+        push_trials.main([str(tiny_run), "--watch", "0"])
 
 
 def test_a_run_records_its_engine_settings_and_evaluation_names_the_changed_ones(tiny_run, tmp_path):
