@@ -114,12 +114,15 @@ class BatchedSim:
         self.model = builder.build()
         task.bind(self.model)
         self.push_body_index = []
+        dynamic = [n for n, d in zip(self.model.body_names, self.model.dynamic) if d]
         for name in self.push_bodies:
             try:
-                self.push_body_index.append(self.model.body_index(name))
+                index = self.model.body_index(name)
             except KeyError:
-                dynamic = [n for n, d in zip(self.model.body_names, self.model.dynamic) if d]
                 raise ValueError(f"push_bodies: no body named {name!r}; bodies: {dynamic}") from None
+            if not self.model.dynamic[index]:
+                raise ValueError(f"push_bodies: {name!r} is static, a push would not move it; bodies: {dynamic}")
+            self.push_body_index.append(index)
         if self.pushes_enabled and not self.push_bodies:
             raise ValueError("push_bodies must name at least one body when push_strength > 0")
 

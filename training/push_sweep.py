@@ -19,6 +19,8 @@ from __future__ import annotations
 
 import argparse
 import time
+from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 
 from . import common as C
@@ -42,18 +44,65 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=12345, help="seed of the evaluation worlds (default 12345)")
     p.add_argument("--num-envs", type=C.positive_int, default=10,
                    help="worlds stepped together, at most --episodes (default 10)")
+    add_output_arguments(p)
+    return p
+
+
+@dataclass
+class Controller:
+    """One controller on its own batched env: the agent (``agent`` set) or a
+    baseline."""
+
+    name: str        # "agent" or a baseline's name
+    env: object      # the SB3 VecEnv to roll out (the agent's under its residual wrapper and VecNormalize)
+    core: object     # the batched core under it (pushes, dt)
+    act: object      # obs -> actions
+    agent: object = None
+
+
+def controllers(run, saved, num_envs, seed, env_kwargs, baselines, deterministic):
+    """The run's agent, then each of ``baselines``, each on a fresh env of
+    ``num_envs`` worlds seeded from ``seed`` with ``env_kwargs`` (so every
+    one meets the same initial states), closed once the caller moves on."""
+    from ragdoll_env.baselines import make_baseline
+
+    agent = load_agent(run, saved, num_envs, seed, env_kwargs)
+    try:
+        yield Controller("agent", agent.env, agent.venv.core, partial(agent.act, deterministic=deterministic), agent)
+    finally:
+        agent.env.close()
+    env_id, residual = saved["env_id"], saved["config"].get("residual")
+    for name in baselines:
+        venv = _make_venv(env_id, num_envs, seed, env_kwargs)
+        try:
+            ctrl = make_baseline(name, venv, **C.baseline_kwargs(name, residual, env_id))
+            yield Controller(name, venv, venv.core, ctrl.act)
+        finally:
+            venv.close()
+
+
+def add_output_arguments(p) -> None:
+    """--stochastic, --json, --plot and --threads, as the push sweep and the
+    push trials take them."""
     p.add_argument("--stochastic", dest="deterministic", action="store_false",
                    help="sample the policy's actions (default: its mean action)")
     p.add_argument("--json", metavar="PATH", default=None, help="write the rows as JSON here")
     p.add_argument("--plot", metavar="PNG", default=None, help="plot fall rate against strength (matplotlib)")
     p.add_argument("--threads", type=C.positive_int, default=1, help="torch CPU threads (default 1)")
-    return p
+
+
+def balance_run(run_dir) -> tuple:
+    """(run directory, its config.json) of a Ragdoll/Balance-v0 run, else
+    TrainingError."""
+    run = C.require_run_dir(run_dir)
+    saved = C.read_run_config(run)
+    if saved["env_id"] != "Ragdoll/Balance-v0":
+        raise C.TrainingError(f"{str(run)!r} is a run of {saved['env_id']}; pushes need a Ragdoll/Balance-v0 run")
+    return run, saved
 
 
 def sweep(args) -> dict:
     import torch
-
-    from ragdoll_env.baselines import make_baseline
 
     torch.set_num_threads(int(args.threads))
     if args.episodes < 1 or args.num_envs < 1:  # argparse checks both; this is for callers of the function
@@ -61,11 +110,8 @@ def sweep(args) -> dict:
     if any(s < 0 for s in args.strengths):
         raise C.TrainingError(f"--strengths must be >= 0 N·s, got {args.strengths}")
     t0 = time.time()
-    run = C.require_run_dir(args.run_dir)
-    saved = C.read_run_config(run)
+    run, saved = balance_run(args.run_dir)
     env_id = saved["env_id"]
-    if env_id != "Ragdoll/Balance-v0":
-        raise C.TrainingError(f"{str(run)!r} is a run of {env_id}; the push sweep needs a Ragdoll/Balance-v0 run")
     base_kwargs = dict(saved["config"].get("env_kwargs") or {})
     if args.push_interval is not None:
         base_kwargs["push_interval"] = tuple(args.push_interval)
@@ -74,17 +120,13 @@ def sweep(args) -> dict:
     rows, model_label, model_steps, episode_s = [], None, None, None
     for s in strengths:
         env_kwargs = {**base_kwargs, "push_strength": (s, s) if s > 0 else 0.0}
-        agent = load_agent(run, saved, num_envs, args.seed, env_kwargs)
-        model_label, model_steps = agent.label, int(agent.model.num_timesteps)
-        results = {"agent": rollout(agent.env, lambda obs: agent.act(obs, args.deterministic), args.episodes)}
-        agent.env.close()
-        for name in args.baselines:
-            venv = _make_venv(env_id, num_envs, args.seed, env_kwargs)
-            ctrl = make_baseline(name, venv, **C.baseline_kwargs(name, saved["config"].get("residual"), env_id))
-            results[name] = rollout(venv, ctrl.act, args.episodes)
-            venv.close()
-        dt = agent.venv.core.dt  # s per env step
-        episode_s = agent.venv.core.max_episode_steps * dt if agent.venv.core.max_episode_steps else None
+        results = {}
+        for ctrl in controllers(run, saved, num_envs, args.seed, env_kwargs, args.baselines, args.deterministic):
+            results[ctrl.name] = rollout(ctrl.env, ctrl.act, args.episodes)
+            if ctrl.agent is not None:
+                model_label, model_steps = ctrl.agent.label, int(ctrl.agent.model.num_timesteps)
+                dt = ctrl.core.dt  # s per env step
+                episode_s = ctrl.core.max_episode_steps * dt if ctrl.core.max_episode_steps else None
         for name, r in results.items():
             rows.append({
                 "strength": s,

@@ -6,29 +6,35 @@ every controller, to see exactly which pushes a Balance policy survives.
 
 Each trial is one world: it stands for ``--settle`` s under its controller,
 gets a single horizontal push of the given impulse at the centre of one of
-``--bodies`` (heading 0 is the humanoid's front, +x; 90° its left, +y), and
+``--bodies``, towards one of ``--directions`` headings (0: towards the
+humanoid's front, +x, shoving it forward; 90°: towards its left, +y), and
 counts as survived when the body is still standing ``--watch`` s later. The
 worlds start from the same seeded initial states for the agent (the run's
 evaluation model, with its residual baseline if it has one) and for each
 baseline, and no other push comes, so the same grid gives the same trials to
 every controller: unlike :mod:`training.push_sweep` (random headings, a push
 every few seconds) the difference between two controllers is not sampling
-noise. Reported per strength and controller: falls of the trials and the
-headings that fell, per body.
+noise. Reported per strength and controller: falls of the trials (with
+those before the push, ``falls_before_push``) and the headings that fell,
+per body. ``--stochastic`` samples from torch's unseeded generator.
 """
 
 from __future__ import annotations
 
 import argparse
 import time
-from functools import partial
 from pathlib import Path
 
 import numpy as np
 
 from . import common as C
-from .evaluate import _make_venv, load_agent
-from .push_sweep import BASELINES, plot_sweep
+from .push_sweep import (
+    BASELINES,
+    add_output_arguments,
+    balance_run,
+    controllers,
+    plot_sweep,
+)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -47,11 +53,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--baselines", nargs="*", default=["standing_pd"], choices=BASELINES,
                    help="baselines beside the agent (default: standing_pd)")
     p.add_argument("--seed", type=int, default=0, help="seed of the worlds' initial states (default 0)")
-    p.add_argument("--stochastic", dest="deterministic", action="store_false",
-                   help="sample the policy's actions (default: its mean action)")
-    p.add_argument("--json", metavar="PATH", default=None, help="write the rows as JSON here")
-    p.add_argument("--plot", metavar="PNG", default=None, help="plot falls against strength (matplotlib)")
-    p.add_argument("--threads", type=C.positive_int, default=1, help="torch CPU threads (default 1)")
+    add_output_arguments(p)
     return p
 
 
@@ -60,18 +62,20 @@ def headings(directions: int) -> np.ndarray:
     return 2.0 * np.pi * np.arange(directions) / directions
 
 
-def run_trials(env, core, act, step_s, bodies, strength, directions, settle, watch) -> np.ndarray:
-    """(len(bodies), directions) bool: the worlds of ``env`` (an SB3 VecEnv of
-    len(bodies) x directions worlds over the batched ``core``, each policy step
-    ``step_s`` seconds) that fell before the push or within ``watch`` s after
-    it. World b * directions + i is pushed at ``bodies[b]`` towards
+def run_trials(env, core, act, bodies, strength, directions, settle, watch) -> tuple:
+    """(fell, fell_before) of the worlds of ``env`` (an SB3 VecEnv of
+    len(bodies) x directions worlds over the batched ``core``, a step of
+    ``core.dt`` s), each (len(bodies), directions) bool: fell before the push
+    or within ``watch`` s after it, and fell before it. World b * directions
+    + i is pushed at body index ``bodies[b]`` towards
     ``headings(directions)[i]`` with ``strength`` N·s after ``settle`` s."""
-    settle_steps, watch_steps = (round(t / step_s) for t in (settle, watch))
+    settle_steps, watch_steps = round(settle / core.dt), max(1, round(watch / core.dt))
     fell = np.zeros(env.num_envs, dtype=bool)
     obs = env.reset()
     for _ in range(settle_steps):
         obs, _, done, _ = env.step(act(obs))
         fell |= done
+    before = fell.copy()
     h = headings(directions)
     impulse = strength * np.stack([np.cos(h), np.sin(h), np.zeros_like(h)], axis=1)
     for b, body in enumerate(bodies):
@@ -80,7 +84,8 @@ def run_trials(env, core, act, step_s, bodies, strength, directions, settle, wat
     for _ in range(watch_steps):
         obs, _, done, _ = env.step(act(obs))
         fell |= done
-    return fell.reshape(len(bodies), directions)
+    shape = (len(bodies), directions)
+    return fell.reshape(shape), before.reshape(shape)
 
 
 def _check(args):
@@ -88,61 +93,47 @@ def _check(args):
         raise C.TrainingError(f"--settle must be >= 0 and --watch > 0 s, got {args.settle} and {args.watch}")
     if any(s <= 0 for s in args.strengths):
         raise C.TrainingError(f"--strengths must be > 0 N·s, got {args.strengths}")
+    if args.bodies is not None and len(set(args.bodies)) != len(args.bodies):
+        raise C.TrainingError(f"--bodies names a body twice: {args.bodies}")
 
 
 def trials(args) -> dict:
     import torch
 
-    from ragdoll_env.baselines import make_baseline
     from ragdoll_env.tasks import BalanceTask
 
     torch.set_num_threads(int(args.threads))
     _check(args)
     t0 = time.time()
-    run = C.require_run_dir(args.run_dir)
-    saved = C.read_run_config(run)
-    env_id = saved["env_id"]
-    if env_id != "Ragdoll/Balance-v0":
-        raise C.TrainingError(f"{str(run)!r} is a run of {env_id}; push trials need a Ragdoll/Balance-v0 run")
+    run, saved = balance_run(args.run_dir)
     bodies = list(args.bodies or BalanceTask.push_bodies)
-    residual = saved["config"].get("residual")
-    # no random pushes and no time limit: each world meets its one push
-    env_kwargs = {**(saved["config"].get("env_kwargs") or {}), "push_strength": 0.0, "max_episode_steps": None}
+    # no random pushes (push_bodies only checks the names: movable bodies) and no time limit
+    env_kwargs = {**(saved["config"].get("env_kwargs") or {}), "push_strength": 0.0, "push_bodies": bodies,
+                  "max_episode_steps": None}
     W = len(bodies) * args.directions
     rows, model_label, model_steps = [], None, None
     for s in dict.fromkeys(args.strengths):
-        agent = load_agent(run, saved, W, args.seed, env_kwargs)
-        core = agent.venv.core
-        try:
-            index = [core.model.body_index(b) for b in bodies]
-        except KeyError as exc:
-            raise C.TrainingError(f"--bodies: {exc.args[0]}") from None
-        model_label, model_steps = agent.label, int(agent.model.num_timesteps)
-        results = {"agent": run_trials(agent.env, core, partial(agent.act, deterministic=args.deterministic),
-                                       core.dt, index, s, args.directions, args.settle, args.watch)}
-        agent.env.close()
-        for name in args.baselines:
-            venv = _make_venv(env_id, W, args.seed, env_kwargs)
-            ctrl = make_baseline(name, venv, **C.baseline_kwargs(name, residual, env_id))
-            results[name] = run_trials(venv, venv.core, ctrl.act, venv.core.dt, index, s, args.directions,
-                                       args.settle, args.watch)
-            venv.close()
-        for name, fell in results.items():
+        for ctrl in controllers(run, saved, W, args.seed, env_kwargs, args.baselines, args.deterministic):
+            if ctrl.agent is not None:
+                model_label, model_steps = ctrl.agent.label, int(ctrl.agent.model.num_timesteps)
+            fell, before = run_trials(ctrl.env, ctrl.core, ctrl.act, ctrl.core.push_body_index, s, args.directions,
+                                      args.settle, args.watch)
             rows.append({
                 "strength": s,
-                "controller": name,
+                "controller": ctrl.name,
                 "trials": int(fell.size),
                 "falls": int(fell.sum()),
+                "falls_before_push": int(before.sum()),
                 "fall_rate": float(fell.mean()),
                 "fell": {b: "".join("X" if f else "." for f in fell[k]) for k, b in enumerate(bodies)},
             })
         print_rows([r for r in rows if r["strength"] == s], bodies, header=(s == args.strengths[0]))
-    result = {"run_dir": str(run), "env_id": env_id, "model": model_label, "model_timesteps": model_steps,
+    result = {"run_dir": str(run), "env_id": saved["env_id"], "model": model_label, "model_timesteps": model_steps,
               "seed": args.seed, "deterministic": bool(args.deterministic), "bodies": bodies,
               "directions": args.directions, "headings_deg": [round(float(np.degrees(x)), 3)
                                                               for x in headings(args.directions)],
-              "settle_s": args.settle, "watch_s": args.watch, "residual": residual,
-              "rows": rows, "wall_time_s": round(time.time() - t0, 3)}
+              "settle_s": args.settle, "watch_s": args.watch, "env_kwargs": env_kwargs,
+              "residual": saved["config"].get("residual"), "rows": rows, "wall_time_s": round(time.time() - t0, 3)}
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         C.write_json(args.json, result)
@@ -156,7 +147,7 @@ def print_rows(rows, bodies, header=True) -> None:
     """The rows as a table; each body's column marks the headings that fell
     (X), from the front (first) counter-clockwise seen from above."""
     if header:
-        print("headings from the front (+x) counter-clockwise seen from above; X: fell")
+        print("pushes towards headings from forward (+x) counter-clockwise seen from above; X: fell")
         print(f"{'N·s':>6}  {'controller':<12}{'falls':>8}" + "".join(f"  {b:<{len(rows[0]['fell'][b])}}" for b in bodies))
     for r in rows:
         maps = "".join(f"  {r['fell'][b]:<{len(b)}}" for b in bodies)

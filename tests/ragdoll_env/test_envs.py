@@ -118,6 +118,7 @@ def test_unknown_kwarg_raises_naming_it(env_id):
     ({"push_strength": -1}, "push_strength"),
     ({"push_interval": (0, 1)}, "push_interval"),
     ({"push_strength": 1.0, "push_bodies": ("nose",)}, "push_bodies"),
+    ({"push_strength": 1.0, "push_bodies": ("world",)}, "push_bodies: 'world' is static"),
     ({"render_mode": "ascii"}, "render_mode"),
     ({"width": 0, "render_mode": "rgb_array"}, "width"),
     ({"pole_mass": 0}, "pole_mass"),

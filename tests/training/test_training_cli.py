@@ -246,22 +246,27 @@ def test_push_sweep_rows_for_agent_and_baselines(tiny_balance_run, tmp_path):
     assert res["residual"]["baseline"] == "standing_pd"
 
 
-def test_push_trials_weak_pushes_are_survived_and_strong_ones_topple(tiny_balance_run, tmp_path):
-    """One push per world from four headings at the chest: at 5 N·s (the
-    capture point moves 2 cm) neither the agent nor the PD falls; at 80 N·s
-    (about 34 cm, beyond any foot) every world falls within 2 s; the JSON
-    holds the rows and the plot is written."""
+def test_push_trials_survive_weak_pushes_and_fall_backwards(tiny_balance_run, tmp_path):
+    """One push per world at the chest, towards the front and the back, for
+    3.5 s (beyond the run's 3 s episodes, which the trials do not truncate):
+    at 5 N·s (the capture point moves 2 cm) nothing falls; at 25 N·s the PD
+    takes the forward push on its toes and tips over its heels from the
+    backward one (the centre of mass stands 2 cm behind the foot centres).
+    The JSON holds the rows and the plot is written; a body that is not
+    movable is named."""
     from training import push_trials
 
     out, png = tmp_path / "trials.json", tmp_path / "trials.png"
-    res = push_trials.main([str(tiny_balance_run), "--strengths", "5", "80", "--directions", "4", "--bodies",
-                            "chest", "--settle", "0.2", "--watch", "2", "--json", str(out), "--plot", str(png)])
+    res = push_trials.main([str(tiny_balance_run), "--strengths", "5", "25", "--directions", "2", "--bodies",
+                            "chest", "--settle", "0.5", "--watch", "3", "--json", str(out), "--plot", str(png)])
     assert json.loads(out.read_text())["rows"] == res["rows"] and png.stat().st_size > 1000
     assert [(r["strength"], r["controller"], r["trials"]) for r in res["rows"]] == [
-        (5.0, "agent", 4), (5.0, "standing_pd", 4), (80.0, "agent", 4), (80.0, "standing_pd", 4)]
-    for r in res["rows"]:
-        assert r["fell"]["chest"] == ("...." if r["strength"] == 5 else "XXXX"), r
-    assert res["headings_deg"] == [0.0, 90.0, 180.0, 270.0]
+        (5.0, "agent", 2), (5.0, "standing_pd", 2), (25.0, "agent", 2), (25.0, "standing_pd", 2)]
+    fell = {(r["strength"], r["controller"]): r["fell"]["chest"] for r in res["rows"]}
+    assert fell[5.0, "agent"] == fell[5.0, "standing_pd"] == ".."
+    assert fell[25.0, "standing_pd"] == ".X"
+    assert all(r["falls_before_push"] == 0 for r in res["rows"])
+    assert res["headings_deg"] == [0.0, 180.0]
     with pytest.raises(SystemExit, match="no body named 'nose'"):
         push_trials.main([str(tiny_balance_run), "--strengths", "5", "--directions", "1", "--bodies", "nose"])
 
@@ -269,9 +274,9 @@ def test_push_trials_weak_pushes_are_survived_and_strong_ones_topple(tiny_balanc
 def test_push_sweep_and_trials_need_a_balance_run(tiny_run):
     from training import push_sweep, push_trials
 
-    with pytest.raises(SystemExit, match="needs a Ragdoll/Balance-v0 run"):
+    with pytest.raises(SystemExit, match="pushes need a Ragdoll/Balance-v0 run"):
         push_sweep.main([str(tiny_run), "--episodes", "1"])
-    with pytest.raises(SystemExit, match="need a Ragdoll/Balance-v0 run"):
+    with pytest.raises(SystemExit, match="pushes need a Ragdoll/Balance-v0 run"):
         push_trials.main([str(tiny_run), "--directions", "1"])
     with pytest.raises(SystemExit, match="--watch > 0"):
         push_trials.main([str(tiny_run), "--watch", "0"])
