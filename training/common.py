@@ -244,21 +244,37 @@ def saved_models(run_dir) -> list[Path]:
     return [m for _, m, _ in checkpoints(run)] + [run / n for n in (FINAL_MODEL, BEST_MODEL) if (run / n).is_file()]
 
 
-def model_for_evaluation(run_dir) -> tuple[str, Path, Path | None]:
-    """(label, model, vecnormalize or None): best model, else final, else last checkpoint."""
+#: which model of a run ``--model`` picks: best (the default), final or the last checkpoint
+MODEL_CHOICES = ("best", "final", "last")
+
+
+def add_model_argument(p) -> None:
+    """``--model {best,final,last}`` of the evaluation CLIs."""
+    p.add_argument("--model", choices=MODEL_CHOICES, default="best",
+                   help="which model of the run: best (the default; else final, else the last checkpoint), final "
+                        "(at the end of its last session) or last (its last checkpoint)")
+
+
+def model_for_evaluation(run_dir, which: str = "best") -> tuple[str, Path, Path | None]:
+    """(label, model, vecnormalize or None) of a run. ``which`` "best": the
+    best model, else the final one, else the last checkpoint; "final": the
+    model at the end of its last session; "last": its last checkpoint."""
     run = Path(run_dir)
-    if (run / BEST_MODEL).is_file():
+    if which not in MODEL_CHOICES:
+        raise TrainingError(f"model must be one of {MODEL_CHOICES}, got {which!r}")
+    if which == "best" and (run / BEST_MODEL).is_file():
         vn = run / BEST_VECNORM if (run / BEST_VECNORM).is_file() else run / FINAL_VECNORM
         return "best_model", run / BEST_MODEL, vn if vn.is_file() else None
-    if (run / FINAL_MODEL).is_file():
+    if which in ("best", "final") and (run / FINAL_MODEL).is_file():
         vn = run / FINAL_VECNORM
         return "final_model", run / FINAL_MODEL, vn if vn.is_file() else None
     ckpts = checkpoints(run)
-    if ckpts:
+    if which in ("best", "last") and ckpts:
         steps, model, vn = ckpts[-1]
         return f"checkpoint_{steps}", model, vn if vn.is_file() else None
-    raise TrainingError(f"run directory {str(run)!r} holds no model ({BEST_MODEL}, {FINAL_MODEL} or "
-                        f"{CHECKPOINT_DIR}/{CHECKPOINT_PREFIX}_*_steps.zip)")
+    wanted = {"best": f"{BEST_MODEL}, {FINAL_MODEL} or {CHECKPOINT_DIR}/{CHECKPOINT_PREFIX}_*_steps.zip",
+              "final": FINAL_MODEL, "last": f"{CHECKPOINT_DIR}/{CHECKPOINT_PREFIX}_*_steps.zip"}[which]
+    raise TrainingError(f"run directory {str(run)!r} holds no model ({wanted})")
 
 
 def load_ppo(path, env=None, device="cpu", custom_objects=None):

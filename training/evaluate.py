@@ -34,6 +34,7 @@ def build_parser() -> argparse.ArgumentParser:
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("run_dir", metavar="RUN_DIR", help="a run directory written by python -m training.train")
     p.add_argument("--episodes", type=C.positive_int, default=20, help="episodes per controller (default 20)")
+    C.add_model_argument(p)
     p.add_argument("--json", metavar="PATH", default=None, help="write the results as JSON here")
     p.add_argument("--video", metavar="DIR", default=None,
                    help="record the agent with gymnasium's RecordVideo (render_mode='rgb_array') into DIR")
@@ -145,12 +146,12 @@ class Agent:
         return self.model.predict(obs, deterministic=deterministic)[0]
 
 
-def load_agent(run, saved, num_envs, seed, env_kwargs) -> Agent:
-    """The run's model (see :func:`training.common.model_for_evaluation`) on
+def load_agent(run, saved, num_envs, seed, env_kwargs, which="best") -> Agent:
+    """The run's ``which`` model (see :func:`training.common.model_for_evaluation`) on
     ``num_envs`` worlds seeded from ``seed``, with the run's residual baseline
     (if any) under its observation normalisation, as in training."""
     env_id = saved["env_id"]
-    label, model_path, vn_path = C.model_for_evaluation(run)
+    label, model_path, vn_path = C.model_for_evaluation(run, which)
     model = C.load_ppo(model_path)
     venv = _make_venv(env_id, num_envs, seed, env_kwargs)
     if model.observation_space.shape != venv.observation_space.shape:
@@ -223,7 +224,7 @@ def evaluate(args) -> dict:
     num_envs = min(args.num_envs, args.episodes)  # no idle worlds
 
     residual = saved["config"].get("residual")
-    loaded = load_agent(run, saved, num_envs, args.seed, env_kwargs)
+    loaded = load_agent(run, saved, num_envs, args.seed, env_kwargs, args.model)
     changed = C.settings_changes(saved.get("engine_settings"), C.engine_settings(loaded.venv))
     if changed:
         warnings.warn(f"{run} was trained with other engine settings than this evaluation steps with "

@@ -60,13 +60,14 @@ class Controller:
     agent: object = None
 
 
-def controllers(run, saved, num_envs, seed, env_kwargs, baselines, deterministic):
+def controllers(run, saved, num_envs, seed, env_kwargs, baselines, deterministic, which="best"):
     """The run's agent, then each of ``baselines``, each on a fresh env of
     ``num_envs`` worlds seeded from ``seed`` with ``env_kwargs`` (so every
-    one meets the same initial states), closed once the caller moves on."""
+    one meets the same initial states), closed once the caller moves on;
+    ``which`` picks the run's model (:func:`training.common.model_for_evaluation`)."""
     from ragdoll_env.baselines import make_baseline
 
-    agent = load_agent(run, saved, num_envs, seed, env_kwargs)
+    agent = load_agent(run, saved, num_envs, seed, env_kwargs, which)
     try:
         yield Controller("agent", agent.env, agent.venv.core, partial(agent.act, deterministic=deterministic), agent)
     finally:
@@ -82,8 +83,9 @@ def controllers(run, saved, num_envs, seed, env_kwargs, baselines, deterministic
 
 
 def add_output_arguments(p) -> None:
-    """--stochastic, --json, --plot and --threads, as the push sweep and the
-    push trials take them."""
+    """--model, --stochastic, --json, --plot and --threads, as the push sweep
+    and the push trials take them."""
+    C.add_model_argument(p)
     p.add_argument("--stochastic", dest="deterministic", action="store_false",
                    help="sample the policy's actions (default: its mean action)")
     p.add_argument("--json", metavar="PATH", default=None, help="write the rows as JSON here")
@@ -121,7 +123,8 @@ def sweep(args) -> dict:
     for s in strengths:
         env_kwargs = {**base_kwargs, "push_strength": (s, s) if s > 0 else 0.0}
         results = {}
-        for ctrl in controllers(run, saved, num_envs, args.seed, env_kwargs, args.baselines, args.deterministic):
+        for ctrl in controllers(run, saved, num_envs, args.seed, env_kwargs, args.baselines, args.deterministic,
+                                args.model):
             results[ctrl.name] = rollout(ctrl.env, ctrl.act, args.episodes)
             if ctrl.agent is not None:
                 model_label, model_steps = ctrl.agent.label, int(ctrl.agent.model.num_timesteps)

@@ -271,6 +271,23 @@ def test_push_trials_survive_weak_pushes_and_fall_backwards(tiny_balance_run, tm
         push_trials.main([str(tiny_balance_run), "--strengths", "5", "--directions", "1", "--bodies", "nose"])
 
 
+def test_model_option_picks_best_final_or_last(tiny_run, tmp_path):
+    """--model best (the default), final or last: the evaluation names the
+    model it loaded; a run without the one asked for is a clear error."""
+    from training import common
+
+    labels = {which: evaluate.main([str(tiny_run), "--episodes", "1", "--num-envs", "1", "--no-baselines",
+                                    "--model", which])["model"] for which in ("best", "final", "last")}
+    last = common.last_checkpoint(tiny_run)[0]
+    assert labels == {"best": "best_model", "final": "final_model", "last": f"checkpoint_{last}"}
+    bare = tmp_path / "bare"
+    bare.mkdir()
+    for name in ("config.json", "best_model.zip", "best_vecnormalize.pkl"):
+        (bare / name).write_bytes((tiny_run / name).read_bytes())
+    with pytest.raises(SystemExit, match="holds no model \\(final_model.zip\\)"):
+        evaluate.main([str(bare), "--episodes", "1", "--model", "final"])
+
+
 def test_push_sweep_and_trials_need_a_balance_run(tiny_run):
     from training import push_sweep, push_trials
 
