@@ -255,6 +255,19 @@ def add_model_argument(p) -> None:
                         "(at the end of its last session) or last (its last checkpoint)")
 
 
+def add_processes_argument(p) -> None:
+    """``--processes N`` of the evaluation CLIs."""
+    p.add_argument("--processes", type=positive_int, default=1,
+                   help="worker processes stepping each env's worlds (engine.ParallelStepper): the same results "
+                        "bit for bit, faster on several cores (default 1)")
+
+
+def with_processes(env_kwargs: dict, processes: int) -> dict:
+    """``env_kwargs`` for an env whose worlds step in ``processes`` worker
+    processes (unchanged for one)."""
+    return dict(env_kwargs) if processes == 1 else {**env_kwargs, "processes": int(processes)}
+
+
 def model_for_evaluation(run_dir, which: str = "best") -> tuple[str, Path, Path | None]:
     """(label, model, vecnormalize or None) of a run. ``which`` "best": the
     best model, else the final one, else the last checkpoint; "final": the

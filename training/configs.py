@@ -3,6 +3,10 @@
 Each entry has:
 
 * ``num_envs``: worlds stepped together by the batched SB3 VecEnv;
+* ``processes`` (optional, default 1): worker processes stepping those
+  worlds, for the training and the evaluation env alike
+  (``engine.ParallelStepper``: the same results bit for bit, so a run's
+  outcome does not depend on it, only its speed);
 * ``timesteps``: default training length (``--timesteps`` overrides);
 * ``ppo``: keyword arguments of ``stable_baselines3.PPO`` (``policy_kwargs``
   uses names for ``activation_fn``: "tanh", "relu", "elu");
@@ -136,7 +140,7 @@ CONFIGS = {
 
 
 #: the keys an entry (and the top level of a --config file) may have
-KEYS = ("num_envs", "timesteps", "ppo", "normalize", "env_kwargs", "train_env_kwargs", "residual", "eval",
+KEYS = ("num_envs", "processes", "timesteps", "ppo", "normalize", "env_kwargs", "train_env_kwargs", "residual", "eval",
         "checkpoint_freq", "policy_warmup_steps")
 #: the keys of ``eval``
 EVAL_KEYS = ("freq", "episodes", "num_envs")

@@ -221,6 +221,45 @@ def tiny_balance_run(tmp_path_factory):
     return run
 
 
+def test_worker_processes_train_the_same_run_bit_for_bit(tmp_path):
+    """--processes 2 steps the worlds of the training and the evaluation env in
+    two worker processes (engine.ParallelStepper): the same model,
+    normalisation and evaluations as one process, bit for bit."""
+    import pickle
+
+    import torch
+    from stable_baselines3 import PPO
+
+    from ragdoll_env.tasks import BalanceTask
+
+    step_s = BalanceTask.dt * BalanceTask.frame_skip
+    cfg = {"env_kwargs": {"max_episode_steps": int(round(1.0 / step_s)), "push_interval": [0.5, 0.5]},
+           "ppo": {"n_steps": 32, "batch_size": 64, "n_epochs": 1},
+           "eval": {"freq": 64, "episodes": 2, "num_envs": 2}, "checkpoint_freq": 10_000}
+    path = tmp_path / "bal.json"
+    path.write_text(json.dumps(cfg))
+    for p in (1, 2):
+        train.main(["Ragdoll/Balance-v0", "--timesteps", "128", "--num-envs", "3", "--seed", "0",
+                    "--out", str(tmp_path / f"p{p}"), "--config", str(path), "--processes", str(p),
+                    "--no-progress-bar"])
+    one, two = tmp_path / "p1", tmp_path / "p2"
+    assert json.loads((two / "config.json").read_text())["config"]["processes"] == 2
+    assert json.loads((one / "config.json").read_text())["config"]["processes"] == 1
+    a, b = (PPO.load(str(r / "final_model.zip"), device="cpu").policy for r in (one, two))
+    assert all(torch.equal(x, y) for x, y in zip(a.parameters(), b.parameters()))
+    n1, n2 = (pickle.loads((r / "vecnormalize.pkl").read_bytes()).obs_rms for r in (one, two))
+    assert np.array_equal(n1.mean, n2.mean) and np.array_equal(n1.var, n2.var)
+    with np.load(one / "eval" / "evaluations.npz") as e1, np.load(two / "eval" / "evaluations.npz") as e2:
+        # 2 rollouts of 3 worlds x 32 steps, an evaluation every 64 // 3 = 21 steps of the 3 worlds
+        assert e1["results"].shape == (3, 2)
+        assert np.array_equal(e1["results"], e2["results"]) and np.array_equal(e1["ep_lengths"], e2["ep_lengths"])
+    cfg["processes"] = 0
+    path.write_text(json.dumps(cfg))
+    with pytest.raises(SystemExit, match="processes .*must be a whole number >= 1"):
+        train.main(["Ragdoll/Balance-v0", "--timesteps", "64", "--out", str(tmp_path / "x"), "--config", str(path),
+                    "--no-progress-bar"])
+
+
 def test_push_sweep_rows_for_agent_and_baselines(tiny_balance_run, tmp_path):
     """A tiny residual Balance run: the sweep rolls the agent and the PD out
     at each strength, counting the pushes it gave."""
