@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import mmap
 import multiprocessing as mp
+import signal
 
 import numpy as np
 
@@ -170,7 +171,11 @@ def _share(state: State) -> None:
 
 def _worker(conn, model, state, lo, hi):
     """Step worlds [lo, hi) of ``state`` (views of the shared arrays) on each
-    (numpy error state, control) received, until "stop"."""
+    (numpy error state, control) received, until "stop" or the parent's end
+    of the pipe closes. Ctrl-C reaches the whole process group; the parent
+    alone handles it (and closes the workers), so a worker ignores SIGINT
+    rather than die mid-step with a traceback of its own."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     part = state.worlds(lo, hi)
     while True:
         try:

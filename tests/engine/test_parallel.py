@@ -154,6 +154,27 @@ def test_a_dead_worker_closes_the_stepper_with_a_clear_error():
         stepper.step()
 
 
+def test_workers_leave_ctrl_c_to_the_parent():
+    # Ctrl-C signals the whole process group: a worker that died of it would
+    # print its own traceback and fail the step the parent is saving after.
+    import os
+    import signal
+    import time
+
+    model = ragdoll_on_ground()
+    serial, shared = model.initial_state(4), model.initial_state(4)
+    with e.ParallelStepper(model, shared, processes=2) as stepper:
+        stepper.step()
+        for p in stepper._procs:
+            os.kill(p.pid, signal.SIGINT)
+        time.sleep(0.2)
+        assert all(p.is_alive() for p in stepper._procs)
+        stepper.step()
+    e.step(model, serial)
+    e.step(model, serial)
+    assert shared.equal(serial)
+
+
 def test_events_of_a_worker_with_a_non_finite_world_are_kept():
     model = breakable_pair()
     state = model.initial_state(4)
