@@ -62,6 +62,10 @@ class ParallelStepper:
         _share(state)
         ctx = mp.get_context("fork")
         self._conns, self._procs = [], []
+        # SIGINT blocked while forking: a worker ignores it from its first
+        # instruction on (_worker), and a Ctrl-C meanwhile reaches the parent
+        # once unblocked.
+        mask = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
         try:
             for lo, hi in zip(self.bounds[:-1], self.bounds[1:]):
                 parent, child = ctx.Pipe()
@@ -71,8 +75,10 @@ class ParallelStepper:
                 self._conns.append(parent)
                 self._procs.append(p)
         except BaseException:
+            signal.pthread_sigmask(signal.SIG_SETMASK, mask)
             self.close()
             raise
+        signal.pthread_sigmask(signal.SIG_SETMASK, mask)
 
     @property
     def processes(self) -> int:
@@ -176,6 +182,7 @@ def _worker(conn, model, state, lo, hi):
     alone handles it (and closes the workers), so a worker ignores SIGINT
     rather than die mid-step with a traceback of its own."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})  # blocked by the parent while forking
     part = state.worlds(lo, hi)
     while True:
         try:

@@ -264,8 +264,8 @@ def add_processes_argument(p) -> None:
 
 def with_processes(env_kwargs: dict, processes: int) -> dict:
     """``env_kwargs`` for an env whose worlds step in ``processes`` worker
-    processes (unchanged for one)."""
-    return dict(env_kwargs) if processes == 1 else {**env_kwargs, "processes": int(processes)}
+    processes (this count replaces any in ``env_kwargs``)."""
+    return {**env_kwargs, "processes": int(processes)}
 
 
 def model_for_evaluation(run_dir, which: str = "best") -> tuple[str, Path, Path | None]:

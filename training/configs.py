@@ -38,18 +38,19 @@ Starting points (RL Baselines3 Zoo, ``hyperparams/ppo.yml``):
   gae_lambda 0.8, gamma 0.98, 20 epochs, [64, 64] networks);
 * Balance follows the Zoo's Humanoid entry (normalised observations,
   gae_lambda 0.95, ReLU [256, 256] networks; gamma 0.995, a 3.3 s horizon
-  at Balance's 60 Hz control, as 0.99 was at its former 30 Hz) with more worlds per
-  rollout, a small step for the actor (lr 3e-5, target_kl 0.01; its critic
-  at 10 times that, ``critic_lr_factor`` of :mod:`training.policies`), and
-  learns a residual,
-  bounded to 0.1 of each maximum torque, on the standing PD
-  (``ragdoll_env.baselines.StandingPD``): ``training.train`` zeroes the action
-  layer of a residual policy, so the first policy is the PD plus
-  exploration noise (σ = 0.1 e^-1.6 ≈ 0.02 of each maximum torque; under the
-  default pushes the 60 Hz PD plus Gaussian noise of σ 0.005, 0.01 and 0.02
-  fell in 3, 1 and 0 of 40 episodes, the PD alone in 0 of the same 40;
-  measured before the PD's lifted-foot ankle gains of 2026-12-05, which
-  the entry records as the residual's ``kwargs``).
+  at Balance's 60 Hz control) with more worlds per rollout (128, stepped
+  in two worker processes), a small step for the actor (lr 1e-4,
+  target_kl 0.02; its critic at 3 times that, ``critic_lr_factor`` of
+  :mod:`training.policies`), training episodes of push trials
+  (``train_env_kwargs``), and learns a residual, bounded to 0.3 of each
+  maximum torque, on the standing PD (``ragdoll_env.baselines.StandingPD``):
+  ``training.train`` zeroes the action layer of a residual policy, so the
+  first policy is the PD plus exploration noise (σ = 0.3 e^-1.8 ≈ 0.05 of
+  each maximum torque). Until 2026-12-06 the entry had 32 worlds in one
+  process, lr 3e-5, target_kl 0.01, the critic at 10x, σ e^-1.6, the
+  residual at 0.1 and the default pushes in training
+  (``docs/balance_pd_level.json`` restores it): its policies stayed level
+  with the PD.
 
 ``--config PATH`` (JSON or YAML) is merged over the entry, key by key (nested
 dicts merged recursively), e.g. ``{"ppo": {"learning_rate": 3e-4}}``; a key
@@ -96,44 +97,39 @@ CONFIGS = {
         "checkpoint_freq": 50_000,
     },
     "Ragdoll/Balance-v0": {
-        "num_envs": 32,
+        "num_envs": 128,
+        "processes": 2,          # 128 worlds in two worker processes: 1,280 env steps/s here, 776 in one
         "timesteps": 5_000_000,
         "ppo": {
             "policy": "MlpPolicy",
-            "n_steps": 256,      # x num_envs 32 = 8192 transitions per rollout
+            "n_steps": 64,       # x num_envs 128 = 8192 transitions per rollout
             "batch_size": 512,
             "n_epochs": 5,
             "gamma": 0.995,     # 200 steps, 3.3 s at 60 Hz (0.99 at the former 30 Hz)
             "gae_lambda": 0.95,
-            # At 2.5e-4 the residual wrecked the PD within 3 minutes (30 Hz, training episodes
-            # of 0.7 s). At 60 Hz with the residual at full scale (σ 0.02, 4096 transitions,
-            # 10 epochs) it degraded the PD at 3e-5 (target_kl 0.02) and at 1e-5 (0.01) alike:
-            # evaluations fell in 62% and 56% of episodes at 300k steps. Bounded to 0.1 of each
-            # maximum torque, with twice the transitions per update and half the epochs, its
-            # training return stayed flat over 800k steps, its evaluations (16 episodes)
-            # between 0 and 38% falls where the PD falls in 5-12%: no better than the PD
-            # (all before the PD's lifted-foot gains of 2026-12-05; on them, docs/balance_training.md).
-            # Neither were harder training pushes (10-30 N·s every 1.5-3 s, train_env_kwargs),
-            # a legs-only residual at 0.3, nor gSDE exploration (44% falls at 300k), nor a residual
-            # whose reach grew with the capture point to 0.5 (3-5 of 16 falls at 200k):
-            # docs/balance_training.md.
-            "learning_rate": 3e-5,
-            "target_kl": 0.01,
+            # The actor at 1e-4 with target_kl 0.02, the critic at 3 times that: at 3e-5 and 0.01
+            # with the critic at 10x (the config until 2026-12-06) the policy stayed level with the
+            # PD it starts from; at 2.5e-4 (30 Hz, 0.7 s episodes) it wrecked the PD within 3
+            # minutes. docs/balance_training.md has every run.
+            "learning_rate": 1e-4,
+            "target_kl": 0.02,
             "clip_range": 0.2,
             "ent_coef": 0.0,
             "vf_coef": 0.5,
             "max_grad_norm": 0.5,
-            # σ e^-1.6 = 0.2 of the residual's range, 0.02 of each maximum torque. The critic at
-            # 10x the actor's rate (3e-4, training.policies): its best model falls as often as the
-            # PD, the critic at 3e-5 gave one that fell more (docs/balance_training.md).
+            # σ e^-1.8 = 0.17 of the residual's range, 0.05 of each maximum torque.
             "policy_kwargs": {"net_arch": {"pi": [256, 256], "vf": [256, 256]}, "activation_fn": "relu",
-                              "log_std_init": -1.6, "ortho_init": True, "critic_lr_factor": 10},
+                              "log_std_init": -1.8, "ortho_init": True, "critic_lr_factor": 3},
         },
         "normalize": {"norm_obs": True, "norm_reward": True, "clip_obs": 10.0, "gamma": 0.995},
         "env_kwargs": {},
+        # Training episodes are push trials: 3 s with a push of 15-28 N·s every 1-1.5 s, where
+        # the PD is at its limit (it falls from most chest pushes of 25 N·s). The evaluations
+        # keep the default env (20 s, 5-20 N·s every 2-4 s).
+        "train_env_kwargs": {"max_episode_steps": 180, "push_interval": [1.0, 1.5], "push_strength": [15, 28]},
         # Recorded with the run: runs that did not record lifted_ankle step on the PD before it (1.0).
-        "residual": {"baseline": "standing_pd", "scale": 0.1, "kwargs": {"lifted_ankle": 0.25}},
-        "eval": {"freq": 100_000, "episodes": 16, "num_envs": 16},
+        "residual": {"baseline": "standing_pd", "scale": 0.3, "kwargs": {"lifted_ankle": 0.25}},
+        "eval": {"freq": 250_000, "episodes": 16, "num_envs": 16},
         "checkpoint_freq": 250_000,
     },
 }
@@ -164,6 +160,10 @@ def check_override(override: dict) -> None:
     for key, nullable in MAPPINGS.items():
         if key in override and not (isinstance(override[key], dict) or (nullable and override[key] is None)):
             raise ValueError(f"{key!r} must be a mapping{' or null' if nullable else ''}, got {override[key]!r}")
+    for key in ("env_kwargs", "train_env_kwargs"):
+        if "processes" in (override.get(key) or {}):
+            raise ValueError(f"processes goes at the top level of the config, not in {key!r}: "
+                             f"{{\"processes\": N}} steps the training and the evaluation env alike")
     unknown = [k for k in override.get("eval") or {} if k not in EVAL_KEYS]
     if unknown:
         raise ValueError(f"unknown key{'s' if len(unknown) > 1 else ''} {', '.join(map(repr, unknown))} in "

@@ -129,6 +129,8 @@ def _make_venv(env_id, num_envs, seed, env_kwargs, processes=1):
         return make_sb3_vec_env(env_id, num_envs=num_envs, seed=seed, **C.with_processes(env_kwargs, processes))
     except (TypeError, ValueError) as exc:
         raise C.TrainingError(f"cannot build {env_id} with {env_kwargs}: {exc}") from exc
+    except (RuntimeError, OSError) as exc:  # worker processes that cannot start
+        raise C.TrainingError(f"cannot build {env_id} in {processes} processes: {exc} (try --processes 1)") from exc
 
 
 @dataclass

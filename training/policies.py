@@ -2,7 +2,8 @@
 
 SB3 trains actor and critic with one Adam optimizer at one learning rate.
 A residual policy on a tuned controller needs a small actor step (Balance:
-3e-5; at 2.5e-4 the residual wrecked the standing PD within minutes), and
+1e-4, formerly 3e-5; at 2.5e-4 the residual wrecked the standing PD within
+minutes), and
 with the actor and critic in separate networks Adam's step per parameter is
 about the learning rate whatever ``vf_coef`` scales the value loss by, so
 the critic fits at that small rate too. ``critic_lr_factor`` (in

@@ -61,7 +61,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="worlds stepped together (default: the config's; with --resume the run's)")
     p.add_argument("--processes", type=C.positive_int, default=None,
                    help="worker processes stepping the worlds of the training and evaluation envs; the same "
-                        "results bit for bit, only faster on several cores (default: the config's, else 1)")
+                        "results bit for bit, only faster on several cores (default: the config's; with --resume "
+                        "the run's)")
     p.add_argument("--seed", type=int, default=None, help="random seed (default 0; with --resume the run's)")
     p.add_argument("--out", default=None, help="run directory (default runs/<env-name>-<seed>)")
     p.add_argument("--resume", metavar="DIR", default=None,
@@ -202,10 +203,8 @@ def _make_envs(env_id, cfg, num_envs, seed, evaluation: bool = True):
     from ragdoll_env.residual import residual_vec_env
     from ragdoll_env.sb3 import make_sb3_vec_env
 
-    env_kwargs = dict(cfg.get("env_kwargs") or {})
-    if cfg.get("processes", 1) > 1:
-        env_kwargs["processes"] = cfg["processes"]
-    train_kwargs = {**env_kwargs, **(cfg.get("train_env_kwargs") or {})}
+    env_kwargs = C.with_processes(cfg.get("env_kwargs") or {}, cfg.get("processes", 1))
+    train_kwargs = C.with_processes({**env_kwargs, **(cfg.get("train_env_kwargs") or {})}, cfg.get("processes", 1))
     venv = eval_venv = None
     try:
         venv = residual_vec_env(make_sb3_vec_env(env_id, num_envs=num_envs, seed=seed, **train_kwargs),
@@ -214,11 +213,12 @@ def _make_envs(env_id, cfg, num_envs, seed, evaluation: bool = True):
             n_eval = int(cfg["eval"].get("num_envs", 1))
             eval_venv = residual_vec_env(make_sb3_vec_env(env_id, num_envs=n_eval, seed=seed + 100_000, **env_kwargs),
                                          cfg.get("residual"))
-    except (TypeError, ValueError) as exc:
+    except (TypeError, ValueError, RuntimeError, OSError) as exc:
         for v in (venv, eval_venv):
             if v is not None:
                 v.close()
-        raise C.TrainingError(f"cannot build {env_id}: {exc}") from exc
+        hint = " (try --processes 1)" if isinstance(exc, (RuntimeError, OSError)) else ""
+        raise C.TrainingError(f"cannot build {env_id}: {exc}{hint}") from exc
     venv = VecMonitor(venv)
     norm = dict(cfg.get("normalize") or {})
     eval_env = None
@@ -249,8 +249,8 @@ def _whole(value, name: str, minimum: int) -> int:
 
 def _check_settings(cfg: dict) -> int:
     """Validate the run-level settings of a merged config (residual, eval,
-    checkpoint and warm-up steps) before anything is built; returns the
-    policy warm-up steps."""
+    checkpoint and warm-up steps, processes) before anything is built;
+    returns the policy warm-up steps."""
     try:
         check_residual(cfg.get("residual"))
     except ValueError as exc:
@@ -481,7 +481,7 @@ def train(args) -> dict:
         try:
             if env is not None:
                 env.close()
-        except Exception:  # noqa: BLE001 - after Ctrl-C (worker processes get it too) the run is saved anyway
+        except Exception:  # noqa: BLE001 - closing may fail after Ctrl-C; the run is saved anyway
             if not interrupted:
                 raise
     summary["run_dir"] = str(run)

@@ -163,7 +163,13 @@ def test_workers_leave_ctrl_c_to_the_parent():
 
     model = ragdoll_on_ground()
     serial, shared = model.initial_state(4), model.initial_state(4)
-    with e.ParallelStepper(model, shared, processes=2) as stepper:
+    # As in a terminal (a background job may start with SIGINT ignored, which forks inherit).
+    before = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        stepper = e.ParallelStepper(model, shared, processes=2)
+    finally:
+        signal.signal(signal.SIGINT, before)
+    with stepper:
         stepper.step()
         for p in stepper._procs:
             os.kill(p.pid, signal.SIGINT)

@@ -1,6 +1,7 @@
 import json
 import math
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -210,6 +211,7 @@ def tiny_balance_run(tmp_path_factory):
 
     step_s = BalanceTask.dt * BalanceTask.frame_skip
     cfg = {"env_kwargs": {"max_episode_steps": int(round(3.0 / step_s)), "push_interval": [0.5, 0.5]},
+           "train_env_kwargs": None, "processes": 1,
            "ppo": {"n_steps": 32, "batch_size": 64, "n_epochs": 1},
            "eval": {"freq": 10_000, "episodes": 1, "num_envs": 1}, "checkpoint_freq": 10_000}
     tmp = tmp_path_factory.mktemp("balance")
@@ -221,7 +223,7 @@ def tiny_balance_run(tmp_path_factory):
     return run
 
 
-def test_worker_processes_train_the_same_run_bit_for_bit(tmp_path):
+def test_worker_processes_train_the_same_run_bit_for_bit(tmp_path, monkeypatch):
     """--processes 2 steps the worlds of the training and the evaluation env in
     two worker processes (engine.ParallelStepper): the same model,
     normalisation and evaluations as one process, bit for bit."""
@@ -230,10 +232,20 @@ def test_worker_processes_train_the_same_run_bit_for_bit(tmp_path):
     import torch
     from stable_baselines3 import PPO
 
+    import engine
     from ragdoll_env.tasks import BalanceTask
 
+    made = []  # worker processes of each ParallelStepper made
+
+    class Counted(engine.ParallelStepper):
+        def __init__(self, model, state, processes=2):
+            super().__init__(model, state, processes)
+            made.append(self.processes)
+
+    monkeypatch.setattr(engine, "ParallelStepper", Counted)
+
     step_s = BalanceTask.dt * BalanceTask.frame_skip
-    cfg = {"env_kwargs": {"max_episode_steps": int(round(1.0 / step_s)), "push_interval": [0.5, 0.5]},
+    cfg = {"env_kwargs": {"max_episode_steps": round(1.0 / step_s), "push_interval": [0.5, 0.5]},
            "ppo": {"n_steps": 32, "batch_size": 64, "n_epochs": 1},
            "eval": {"freq": 64, "episodes": 2, "num_envs": 2}, "checkpoint_freq": 10_000}
     path = tmp_path / "bal.json"
@@ -242,6 +254,9 @@ def test_worker_processes_train_the_same_run_bit_for_bit(tmp_path):
         train.main(["Ragdoll/Balance-v0", "--timesteps", "128", "--num-envs", "3", "--seed", "0",
                     "--out", str(tmp_path / f"p{p}"), "--config", str(path), "--processes", str(p),
                     "--no-progress-bar"])
+        # the training env (3 worlds) and the evaluation env (2) in 2 processes each, or none
+        assert made == ([2, 2] if p == 2 else [])
+        made.clear()
     one, two = tmp_path / "p1", tmp_path / "p2"
     assert json.loads((two / "config.json").read_text())["config"]["processes"] == 2
     assert json.loads((one / "config.json").read_text())["config"]["processes"] == 1
@@ -253,11 +268,37 @@ def test_worker_processes_train_the_same_run_bit_for_bit(tmp_path):
         # 2 rollouts of 3 worlds x 32 steps, an evaluation every 64 // 3 = 21 steps of the 3 worlds
         assert e1["results"].shape == (3, 2)
         assert np.array_equal(e1["results"], e2["results"]) and np.array_equal(e1["ep_lengths"], e2["ep_lengths"])
-    cfg["processes"] = 0
-    path.write_text(json.dumps(cfg))
-    with pytest.raises(SystemExit, match="processes .*must be a whole number >= 1"):
-        train.main(["Ragdoll/Balance-v0", "--timesteps", "64", "--out", str(tmp_path / "x"), "--config", str(path),
-                    "--no-progress-bar"])
+    for bad, message in (({"processes": 0}, "processes .*must be a whole number >= 1"),
+                         ({"processes": 1.5}, "processes .*must be a whole number >= 1"),
+                         ({"env_kwargs": {"processes": 2}}, "processes goes at the top level"),
+                         ({"train_env_kwargs": {"processes": 2}}, "processes goes at the top level")):
+        path.write_text(json.dumps({**cfg, **bad}))
+        with pytest.raises(SystemExit, match=message):
+            train.main(["Ragdoll/Balance-v0", "--timesteps", "64", "--out", str(tmp_path / "x"), "--config",
+                        str(path), "--no-progress-bar"])
+        assert not (tmp_path / "x").exists()
+
+
+def test_the_doc_configs_restore_the_runs_they_name():
+    """docs/balance_pd_level.json over the default is the Balance entry before
+    2026-12-06; docs/balance_push_trials.json the 32-world push-trial run's."""
+    from training.configs import check_override
+
+    docs = Path(__file__).resolve().parents[2] / "docs"
+    default = get_config("Ragdoll/Balance-v0")
+    runs = {"balance_pd_level.json": {"num_envs": 32, "n_steps": 256, "lr": 3e-5, "scale": 0.1, "critic": 10,
+                                      "train": None},
+            "balance_push_trials.json": {"num_envs": 32, "n_steps": 256, "lr": 1e-4, "scale": 0.3, "critic": 3,
+                                         "train": default["train_env_kwargs"]}}
+    for name, want in runs.items():
+        override = json.loads((docs / name).read_text())
+        check_override(override)
+        cfg = merge(default, override)
+        assert cfg["num_envs"] == want["num_envs"] and cfg["processes"] == 1
+        assert cfg["ppo"]["n_steps"] == want["n_steps"] and cfg["ppo"]["learning_rate"] == want["lr"]
+        assert cfg["ppo"]["policy_kwargs"]["critic_lr_factor"] == want["critic"]
+        assert cfg["residual"]["scale"] == want["scale"] and cfg["train_env_kwargs"] == want["train"]
+    assert default["num_envs"] * default["ppo"]["n_steps"] == 32 * 256  # the same transitions per update
 
 
 def test_push_sweep_rows_for_agent_and_baselines(tiny_balance_run, tmp_path):
@@ -286,8 +327,9 @@ def test_push_sweep_rows_for_agent_and_baselines(tiny_balance_run, tmp_path):
 
 
 def test_push_trials_survive_weak_pushes_and_fall_backwards(tiny_balance_run, tmp_path):
-    """One push per world at the chest, towards the front and the back, for
-    3.5 s (beyond the run's 3 s episodes, which the trials do not truncate):
+    """One push per world at the chest, towards the front and the back (in one
+    process and in two), for 3.5 s (beyond the run's 3 s episodes, which the
+    trials do not truncate):
     at 5 N·s (the capture point moves 2 cm) nothing falls; at 25 N·s the PD
     takes the forward push on its toes and tips over its heels from the
     backward one (the centre of mass stands 2 cm behind the foot centres).
@@ -306,6 +348,10 @@ def test_push_trials_survive_weak_pushes_and_fall_backwards(tiny_balance_run, tm
     assert fell[25.0, "standing_pd"] == ".X"
     assert all(r["falls_before_push"] == 0 for r in res["rows"])
     assert res["headings_deg"] == [0.0, 180.0]
+    # the same trials with each env's 2 worlds in 2 worker processes (pushes written to the shared state)
+    two = push_trials.main([str(tiny_balance_run), "--strengths", "5", "25", "--directions", "2", "--bodies",
+                            "chest", "--settle", "0.5", "--watch", "3", "--processes", "2"])
+    assert two["rows"] == res["rows"]
     with pytest.raises(SystemExit, match="no body named 'nose'"):
         push_trials.main([str(tiny_balance_run), "--strengths", "5", "--directions", "1", "--bodies", "nose"])
 
