@@ -67,18 +67,19 @@ class ParallelStepper:
         # once unblocked.
         mask = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
         try:
-            for lo, hi in zip(self.bounds[:-1], self.bounds[1:]):
-                parent, child = ctx.Pipe()
-                p = ctx.Process(target=_worker, args=(child, model, state, int(lo), int(hi)), daemon=True)
-                p.start()
-                child.close()
-                self._conns.append(parent)
-                self._procs.append(p)
+            try:
+                for lo, hi in zip(self.bounds[:-1], self.bounds[1:]):
+                    parent, child = ctx.Pipe()
+                    p = ctx.Process(target=_worker, args=(child, model, state, int(lo), int(hi)), daemon=True)
+                    p.start()
+                    child.close()
+                    self._conns.append(parent)
+                    self._procs.append(p)
+            finally:
+                signal.pthread_sigmask(signal.SIG_SETMASK, mask)
         except BaseException:
-            signal.pthread_sigmask(signal.SIG_SETMASK, mask)
             self.close()
             raise
-        signal.pthread_sigmask(signal.SIG_SETMASK, mask)
 
     @property
     def processes(self) -> int:

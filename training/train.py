@@ -204,7 +204,7 @@ def _make_envs(env_id, cfg, num_envs, seed, evaluation: bool = True):
     from ragdoll_env.sb3 import make_sb3_vec_env
 
     env_kwargs = C.with_processes(cfg.get("env_kwargs") or {}, cfg.get("processes", 1))
-    train_kwargs = C.with_processes({**env_kwargs, **(cfg.get("train_env_kwargs") or {})}, cfg.get("processes", 1))
+    train_kwargs = {**env_kwargs, **(cfg.get("train_env_kwargs") or {})}  # processes never in it (check_override)
     venv = eval_venv = None
     try:
         venv = residual_vec_env(make_sb3_vec_env(env_id, num_envs=num_envs, seed=seed, **train_kwargs),
