@@ -257,9 +257,15 @@ def add_model_argument(p) -> None:
 
 def add_processes_argument(p) -> None:
     """``--processes N`` of the evaluation CLIs."""
-    p.add_argument("--processes", type=positive_int, default=1,
+    p.add_argument("--processes", type=positive_int, default=None,
                    help="worker processes stepping each env's worlds (engine.ParallelStepper): the same results "
-                        "bit for bit, faster on several cores (default 1)")
+                        "bit for bit, faster on several cores (default: the run's, as its config.json says; 1 "
+                        "for runs that name none)")
+
+
+def run_processes(processes, saved: dict) -> int:
+    """``processes`` if given, else the run's (``saved``: its config.json), else 1."""
+    return int(processes) if processes is not None else int(saved["config"].get("processes") or 1)
 
 
 def with_processes(env_kwargs: dict, processes: int) -> dict:

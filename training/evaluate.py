@@ -159,6 +159,7 @@ def load_agent(run, saved, num_envs, seed, env_kwargs, which="best", processes=1
     model = C.load_ppo(model_path)
     venv = _make_venv(env_id, num_envs, seed, env_kwargs, processes)
     if model.observation_space.shape != venv.observation_space.shape:
+        venv.close()
         raise C.TrainingError(f"{model_path} expects observations of shape {model.observation_space.shape}, "
                               f"{env_id} gives {venv.observation_space.shape}")
     vecnorm = None
@@ -228,7 +229,8 @@ def evaluate(args) -> dict:
     num_envs = min(args.num_envs, args.episodes)  # no idle worlds
 
     residual = saved["config"].get("residual")
-    loaded = load_agent(run, saved, num_envs, args.seed, env_kwargs, args.model, args.processes)
+    processes = C.run_processes(args.processes, saved)
+    loaded = load_agent(run, saved, num_envs, args.seed, env_kwargs, args.model, processes)
     changed = C.settings_changes(saved.get("engine_settings"), C.engine_settings(loaded.venv))
     if changed:
         warnings.warn(f"{run} was trained with other engine settings than this evaluation steps with "
@@ -255,7 +257,7 @@ def evaluate(args) -> dict:
 
     if not args.no_baselines:
         for name in baseline_names(env_id):
-            bvenv = _make_venv(env_id, num_envs, args.seed, env_kwargs, args.processes)
+            bvenv = _make_venv(env_id, num_envs, args.seed, env_kwargs, processes)
             try:
                 ctrl = make_baseline(name, bvenv, **C.baseline_kwargs(name, residual, env_id))
                 result["baselines"][name] = rollout(bvenv, ctrl.act, args.episodes)

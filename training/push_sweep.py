@@ -126,7 +126,7 @@ def sweep(args) -> dict:
         env_kwargs = {**base_kwargs, "push_strength": (s, s) if s > 0 else 0.0}
         results = {}
         for ctrl in controllers(run, saved, num_envs, args.seed, env_kwargs, args.baselines, args.deterministic,
-                                args.model, args.processes):
+                                args.model, C.run_processes(args.processes, saved)):
             results[ctrl.name] = rollout(ctrl.env, ctrl.act, args.episodes)
             if ctrl.agent is not None:
                 model_label, model_steps = ctrl.agent.label, int(ctrl.agent.model.num_timesteps)

@@ -114,7 +114,7 @@ def trials(args) -> dict:
     rows, model_label, model_steps = [], None, None
     for s in dict.fromkeys(args.strengths):
         for ctrl in controllers(run, saved, W, args.seed, env_kwargs, args.baselines, args.deterministic, args.model,
-                                args.processes):
+                                C.run_processes(args.processes, saved)):
             if ctrl.agent is not None:
                 model_label, model_steps = ctrl.agent.label, int(ctrl.agent.model.num_timesteps)
             fell, before = run_trials(ctrl.env, ctrl.core, ctrl.act, ctrl.core.push_body_index, s, args.directions,

@@ -268,6 +268,15 @@ def test_worker_processes_train_the_same_run_bit_for_bit(tmp_path, monkeypatch):
         # 2 rollouts of 3 worlds x 32 steps, an evaluation every 64 // 3 = 21 steps of the 3 worlds
         assert e1["results"].shape == (3, 2)
         assert np.array_equal(e1["results"], e2["results"]) and np.array_equal(e1["ep_lengths"], e2["ep_lengths"])
+    # training.evaluate steps in the run's processes unless told otherwise, with the same figures
+    figures = {}
+    for flags, want in (([], [2, 2, 2]), (["--processes", "1"], [])):  # the agent's env, then two baselines'
+        out = tmp_path / f"eval{len(flags)}.json"
+        evaluate.main([str(two), "--episodes", "2", "--json", str(out)] + flags)
+        assert made == want
+        made.clear()
+        figures[len(flags)] = {k: v for k, v in json.loads(out.read_text()).items() if "time" not in k}
+    assert figures[0] == figures[2]
     for bad, message in (({"processes": 0}, "processes .*must be a whole number >= 1"),
                          ({"processes": 1.5}, "processes .*must be a whole number >= 1"),
                          ({"env_kwargs": {"processes": 2}}, "processes goes at the top level"),
