@@ -16,12 +16,19 @@ every controller: unlike :mod:`training.push_sweep` (random headings, a push
 every few seconds) the difference between two controllers is not sampling
 noise. Reported per strength and controller: falls of the trials (with
 those before the push, ``falls_before_push``) and the headings that fell,
-per body. ``--stochastic`` samples from torch's unseeded generator.
+per body, and for each baseline the paired comparison over all the trials
+(``comparisons``): the trials the agent survives where the baseline falls
+(``saved``), those it falls where the baseline survives (``lost``), and the
+exact two-sided sign test on them (McNemar's exact test): the chance of a
+split at least this uneven if either controller were as likely as the other
+to be the one that falls. ``--stochastic`` samples from torch's unseeded
+generator.
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 import time
 from pathlib import Path
 
@@ -88,6 +95,35 @@ def run_trials(env, core, act, bodies, strength, directions, settle, watch) -> t
     return fell.reshape(shape), before.reshape(shape)
 
 
+def sign_test_p(saved: int, lost: int) -> float:
+    """Exact two-sided sign test on the discordant pairs (McNemar's exact
+    test): P(a split of ``saved + lost`` fair coin flips at least as uneven)."""
+    n, k = saved + lost, min(saved, lost)
+    if n == 0:
+        return 1.0
+    return min(1.0, 2.0 * sum(math.comb(n, i) for i in range(k + 1)) / 2.0 ** n)
+
+
+def compare(rows, baseline: str) -> dict:
+    """The agent against ``baseline`` over every trial of ``rows``: falls of
+    each, ``saved`` (the baseline fell, the agent stood), ``lost`` (the
+    reverse) and ``sign_test_p`` (:func:`sign_test_p`)."""
+    agent = {r["strength"]: r for r in rows if r["controller"] == "agent"}
+    other = {r["strength"]: r for r in rows if r["controller"] == baseline}
+    saved = lost = trials = falls_a = falls_b = 0
+    for s, a in agent.items():
+        b = other[s]
+        for body, marks in a["fell"].items():
+            for x, y in zip(marks, b["fell"][body]):
+                saved += x == "." and y == "X"
+                lost += x == "X" and y == "."
+        trials += a["trials"]
+        falls_a += a["falls"]
+        falls_b += b["falls"]
+    return {"baseline": baseline, "trials": trials, "agent_falls": falls_a, "baseline_falls": falls_b,
+            "saved": saved, "lost": lost, "sign_test_p": sign_test_p(saved, lost)}
+
+
 def _check(args):
     if args.settle < 0 or args.watch <= 0:
         raise C.TrainingError(f"--settle must be >= 0 and --watch > 0 s, got {args.settle} and {args.watch}")
@@ -129,12 +165,18 @@ def trials(args) -> dict:
                 "fell": {b: "".join("X" if f else "." for f in fell[k]) for k, b in enumerate(bodies)},
             })
         print_rows([r for r in rows if r["strength"] == s], bodies, header=(s == args.strengths[0]))
+    comparisons = [compare(rows, b) for b in dict.fromkeys(args.baselines)]
+    for c in comparisons:
+        print(f"agent against {c['baseline']}: {c['agent_falls']} and {c['baseline_falls']} falls of {c['trials']}; "
+              f"the agent stands where it falls {c['saved']} times, falls where it stands {c['lost']} "
+              f"(two-sided sign test p = {c['sign_test_p']:.3g})")
     result = {"run_dir": str(run), "env_id": saved["env_id"], "model": model_label, "model_timesteps": model_steps,
               "seed": args.seed, "deterministic": bool(args.deterministic), "bodies": bodies,
               "directions": args.directions, "headings_deg": [round(float(np.degrees(x)), 3)
                                                               for x in headings(args.directions)],
               "settle_s": args.settle, "watch_s": args.watch, "env_kwargs": env_kwargs,
-              "residual": saved["config"].get("residual"), "rows": rows, "wall_time_s": round(time.time() - t0, 3)}
+              "residual": saved["config"].get("residual"), "rows": rows, "comparisons": comparisons,
+              "wall_time_s": round(time.time() - t0, 3)}
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         C.write_json(args.json, result)

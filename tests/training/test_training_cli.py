@@ -357,12 +357,31 @@ def test_push_trials_survive_weak_pushes_and_fall_backwards(tiny_balance_run, tm
     assert fell[25.0, "standing_pd"] == ".X"
     assert all(r["falls_before_push"] == 0 for r in res["rows"])
     assert res["headings_deg"] == [0.0, 180.0]
+    # the paired comparison counts the trials from the maps above
+    pairs = [(x, y) for st in (5.0, 25.0) for x, y in zip(fell[st, "agent"], fell[st, "standing_pd"])]
+    saved, lost = sum(p == (".", "X") for p in pairs), sum(p == ("X", ".") for p in pairs)
+    assert res["comparisons"] == [{
+        "baseline": "standing_pd", "trials": 4, "agent_falls": sum(x == "X" for x, _ in pairs),
+        "baseline_falls": sum(y == "X" for _, y in pairs), "saved": saved, "lost": lost,
+        "sign_test_p": push_trials.sign_test_p(saved, lost)}]
     # the same trials with each env's 2 worlds in 2 worker processes (pushes written to the shared state)
     two = push_trials.main([str(tiny_balance_run), "--strengths", "5", "25", "--directions", "2", "--bodies",
                             "chest", "--settle", "0.5", "--watch", "3", "--processes", "2"])
     assert two["rows"] == res["rows"]
     with pytest.raises(SystemExit, match="no body named 'nose'"):
         push_trials.main([str(tiny_balance_run), "--strengths", "5", "--directions", "1", "--bodies", "nose"])
+
+
+def test_sign_test_p_is_the_exact_binomial_tail():
+    """Two-sided exact sign test: n discordant pairs split k / n - k under a
+    fair coin: 2 P(X <= min(k, n - k)), capped at 1."""
+    from training.push_trials import sign_test_p
+
+    assert sign_test_p(0, 0) == 1.0 and sign_test_p(3, 3) == 1.0
+    assert sign_test_p(5, 0) == sign_test_p(0, 5) == 2 / 32
+    assert sign_test_p(1, 9) == 2 * 11 / 1024
+    assert math.isclose(sign_test_p(19, 5), 2 * sum(math.comb(24, i) for i in range(6)) / 2 ** 24)
+    assert sign_test_p(19, 5) < 0.01 < sign_test_p(17, 9) < sign_test_p(14, 12) <= 1.0
 
 
 def test_model_option_picks_best_final_or_last(tiny_run, tmp_path):
