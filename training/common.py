@@ -263,9 +263,21 @@ def add_processes_argument(p) -> None:
                         "for runs that name none)")
 
 
+def whole_number(value, name: str, minimum: int) -> int:
+    """``value`` of config key ``name`` as an int >= ``minimum`` (an integral
+    float such as 1e5 counts), else TrainingError."""
+    if isinstance(value, float) and value.is_integer():
+        value = int(value)
+    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
+        raise TrainingError(f"{name} must be a whole number >= {minimum}, got {value!r}")
+    return value
+
+
 def run_processes(processes, saved: dict) -> int:
     """``processes`` if given, else the run's (``saved``: its config.json), else 1."""
-    return int(processes) if processes is not None else int(saved["config"].get("processes") or 1)
+    if processes is not None:
+        return int(processes)
+    return whole_number(saved["config"].get("processes", 1), "the run's config.json: processes", 1)
 
 
 def with_processes(env_kwargs: dict, processes: int) -> dict:

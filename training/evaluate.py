@@ -158,16 +158,19 @@ def load_agent(run, saved, num_envs, seed, env_kwargs, which="best", processes=1
     label, model_path, vn_path = C.model_for_evaluation(run, which)
     model = C.load_ppo(model_path)
     venv = _make_venv(env_id, num_envs, seed, env_kwargs, processes)
-    if model.observation_space.shape != venv.observation_space.shape:
-        venv.close()
-        raise C.TrainingError(f"{model_path} expects observations of shape {model.observation_space.shape}, "
-                              f"{env_id} gives {venv.observation_space.shape}")
-    vecnorm = None
-    env = _residual(venv, saved["config"].get("residual"))
-    if vn_path is not None:
-        vecnorm = C.load_vecnormalize(vn_path, env)
-        vecnorm.training, vecnorm.norm_reward = False, False
-        env = vecnorm
+    try:
+        if model.observation_space.shape != venv.observation_space.shape:
+            raise C.TrainingError(f"{model_path} expects observations of shape {model.observation_space.shape}, "
+                                  f"{env_id} gives {venv.observation_space.shape}")
+        vecnorm = None
+        env = _residual(venv, saved["config"].get("residual"))
+        if vn_path is not None:
+            vecnorm = C.load_vecnormalize(vn_path, env)
+            vecnorm.training, vecnorm.norm_reward = False, False
+            env = vecnorm
+    except BaseException:
+        venv.close()  # and its worker processes
+        raise
     return Agent(label, model_path, vn_path, model, env, vecnorm, venv)
 
 
@@ -231,12 +234,15 @@ def evaluate(args) -> dict:
     residual = saved["config"].get("residual")
     processes = C.run_processes(args.processes, saved)
     loaded = load_agent(run, saved, num_envs, args.seed, env_kwargs, args.model, processes)
-    changed = C.settings_changes(saved.get("engine_settings"), C.engine_settings(loaded.venv))
-    if changed:
-        warnings.warn(f"{run} was trained with other engine settings than this evaluation steps with "
-                      f"(field: (trained, now)): {changed}; give the trained values as env_kwargs in the run's "
-                      f"config.json to evaluate as trained", stacklevel=2)
-    agent = rollout(loaded.env, lambda obs: loaded.act(obs, args.deterministic), args.episodes)
+    try:
+        changed = C.settings_changes(saved.get("engine_settings"), C.engine_settings(loaded.venv))
+        if changed:
+            warnings.warn(f"{run} was trained with other engine settings than this evaluation steps with "
+                          f"(field: (trained, now)): {changed}; give the trained values as env_kwargs in the run's "
+                          f"config.json to evaluate as trained", stacklevel=2)
+        agent = rollout(loaded.env, lambda obs: loaded.act(obs, args.deterministic), args.episodes)
+    finally:
+        loaded.env.close()
     result = {
         "run_dir": str(run),
         "env_id": env_id,
@@ -253,7 +259,6 @@ def evaluate(args) -> dict:
         **agent,
         "baselines": {},
     }
-    loaded.env.close()
 
     if not args.no_baselines:
         for name in baseline_names(env_id):

@@ -101,7 +101,7 @@ def sign_test_p(saved: int, lost: int) -> float:
     n, k = saved + lost, min(saved, lost)
     if n == 0:
         return 1.0
-    return min(1.0, 2.0 * sum(math.comb(n, i) for i in range(k + 1)) / 2.0 ** n)
+    return min(1.0, 2 * sum(math.comb(n, i) for i in range(k + 1)) / 2 ** n)  # exact ints: no overflow
 
 
 def compare(rows, baseline: str) -> dict:
@@ -168,8 +168,8 @@ def trials(args) -> dict:
     comparisons = [compare(rows, b) for b in dict.fromkeys(args.baselines)]
     for c in comparisons:
         print(f"agent against {c['baseline']}: {c['agent_falls']} and {c['baseline_falls']} falls of {c['trials']}; "
-              f"the agent stands where it falls {c['saved']} times, falls where it stands {c['lost']} "
-              f"(two-sided sign test p = {c['sign_test_p']:.3g})")
+              f"the agent stands where {c['baseline']} falls {c['saved']} times and falls where {c['baseline']} "
+              f"stands {c['lost']} times (two-sided sign test p = {c['sign_test_p']:.3g})")
     result = {"run_dir": str(run), "env_id": saved["env_id"], "model": model_label, "model_timesteps": model_steps,
               "seed": args.seed, "deterministic": bool(args.deterministic), "bodies": bodies,
               "directions": args.directions, "headings_deg": [round(float(np.degrees(x)), 3)

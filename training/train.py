@@ -237,16 +237,6 @@ def _log_episodes(monitor, path: Path, env_id: str) -> None:
     monitor.results_writer = ResultsWriter(str(path), header={"t_start": monitor.t_start, "env_id": env_id})
 
 
-def _whole(value, name: str, minimum: int) -> int:
-    """``value`` of config key ``name`` as an int >= ``minimum`` (an integral
-    float such as 1e5 counts), else TrainingError."""
-    if isinstance(value, float) and value.is_integer():
-        value = int(value)
-    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
-        raise C.TrainingError(f"{name} must be a whole number >= {minimum}, got {value!r}")
-    return value
-
-
 def _check_settings(cfg: dict) -> int:
     """Validate the run-level settings of a merged config (residual, eval,
     checkpoint and warm-up steps, processes) before anything is built;
@@ -255,14 +245,14 @@ def _check_settings(cfg: dict) -> int:
         check_residual(cfg.get("residual"))
     except ValueError as exc:
         raise C.TrainingError(f"bad residual settings in the config: {exc}") from exc
-    cfg["eval"]["freq"] = _whole(cfg["eval"].get("freq"), "eval.freq (timesteps, 0 for no evaluations)", 0)
+    cfg["eval"]["freq"] = C.whole_number(cfg["eval"].get("freq"), "eval.freq (timesteps, 0 for no evaluations)", 0)
     if cfg["eval"]["freq"] > 0:
-        cfg["eval"]["episodes"] = _whole(cfg["eval"].get("episodes"), "eval.episodes", 1)
-        cfg["eval"]["num_envs"] = _whole(cfg["eval"].get("num_envs", 1), "eval.num_envs", 1)
-    cfg["checkpoint_freq"] = _whole(cfg.get("checkpoint_freq"), "checkpoint_freq (timesteps, 0 for none)", 0)
-    cfg["processes"] = _whole(cfg.get("processes", 1), "processes (worker processes per env)", 1)
+        cfg["eval"]["episodes"] = C.whole_number(cfg["eval"].get("episodes"), "eval.episodes", 1)
+        cfg["eval"]["num_envs"] = C.whole_number(cfg["eval"].get("num_envs", 1), "eval.num_envs", 1)
+    cfg["checkpoint_freq"] = C.whole_number(cfg.get("checkpoint_freq"), "checkpoint_freq (timesteps, 0 for none)", 0)
+    cfg["processes"] = C.whole_number(cfg.get("processes", 1), "processes (worker processes per env)", 1)
     warmup = cfg.get("policy_warmup_steps")
-    return 0 if warmup is None else _whole(warmup, "policy_warmup_steps (timesteps)", 0)
+    return 0 if warmup is None else C.whole_number(warmup, "policy_warmup_steps (timesteps)", 0)
 
 
 def _save_atomic(save, path: Path) -> None:
@@ -337,8 +327,8 @@ def train(args) -> dict:
         env_id = C.resolve_env_id(args.env_id)
         cfg = merge(get_config(env_id), override)
         seed = 0 if args.seed is None else args.seed
-        num_envs = _whole(cfg["num_envs"], "num_envs", 1) if args.num_envs is None else args.num_envs
-        total = _whole(cfg["timesteps"], "timesteps", 1) if args.timesteps is None else args.timesteps
+        num_envs = C.whole_number(cfg["num_envs"], "num_envs", 1) if args.num_envs is None else args.num_envs
+        total = C.whole_number(cfg["timesteps"], "timesteps", 1) if args.timesteps is None else args.timesteps
         run = Path(args.out) if args.out else Path("runs") / f"{C.env_slug(env_id)}-{seed}"
         if run.exists() and not run.is_dir():
             raise C.TrainingError(f"--out {str(run)!r} is a file, not a directory")

@@ -382,6 +382,27 @@ def test_sign_test_p_is_the_exact_binomial_tail():
     assert sign_test_p(1, 9) == 2 * 11 / 1024
     assert math.isclose(sign_test_p(19, 5), 2 * sum(math.comb(24, i) for i in range(6)) / 2 ** 24)
     assert sign_test_p(19, 5) < 0.01 < sign_test_p(17, 9) < sign_test_p(14, 12) <= 1.0
+    # thousands of pairs: exact integers, no float overflow
+    assert sign_test_p(600, 500) < 0.01 and sign_test_p(1500, 1500) == 1.0
+
+
+def test_push_trial_comparison_counts_each_trial_against_each_baseline():
+    """compare() over hand-written rows: two strengths, two bodies, two
+    baselines; saved = the baseline fell where the agent stood."""
+    from training.push_trials import compare, sign_test_p
+
+    def row(strength, controller, chest, pelvis):
+        fell = {"chest": chest, "pelvis": pelvis}
+        return {"strength": strength, "controller": controller, "trials": 8,
+                "falls": sum(m.count("X") for m in fell.values()), "fell": fell}
+
+    rows = [row(20.0, "agent", "..X.", "...."), row(20.0, "pd", "XXX.", "...."), row(20.0, "zero", "XXXX", "XXXX"),
+            row(25.0, "agent", "X..X", ".X.."), row(25.0, "pd", "X...", "XX.X"), row(25.0, "zero", "XXXX", "XXXX")]
+    # against pd: 20 N·s saved 2 (chest 0, 1); 25 N·s saved 2 (pelvis 0, 3), lost 1 (chest 3)
+    assert compare(rows, "pd") == {"baseline": "pd", "trials": 16, "agent_falls": 4, "baseline_falls": 7,
+                                   "saved": 4, "lost": 1, "sign_test_p": sign_test_p(4, 1)}
+    assert compare(rows, "zero") == {"baseline": "zero", "trials": 16, "agent_falls": 4, "baseline_falls": 16,
+                                     "saved": 12, "lost": 0, "sign_test_p": sign_test_p(12, 0)}
 
 
 def test_model_option_picks_best_final_or_last(tiny_run, tmp_path):
