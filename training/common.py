@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import contextlib
 import json
 import math
@@ -250,9 +251,18 @@ MODEL_CHOICES = ("best", "final", "last")
 
 def add_model_argument(p) -> None:
     """``--model {best,final,last}`` of the evaluation CLIs."""
-    p.add_argument("--model", choices=MODEL_CHOICES, default="best",
+    p.add_argument("--model", type=model_choice, default="best", metavar="{best,final,last,STEPS}",
                    help="which model of the run: best (the default; else final, else the last checkpoint), final "
-                        "(at the end of its last session) or last (its last checkpoint)")
+                        "(at the end of its last session), last (its last checkpoint) or STEPS (its checkpoint at "
+                        "that many timesteps)")
+
+
+def model_choice(text: str) -> str:
+    """``--model``'s value: one of MODEL_CHOICES or a checkpoint's timesteps."""
+    if text in MODEL_CHOICES or (text.isdigit() and int(text) > 0):
+        return text
+    raise argparse.ArgumentTypeError(f"expected one of {', '.join(MODEL_CHOICES)} or a checkpoint's timesteps, "
+                                     f"got {text!r}")
 
 
 def add_processes_argument(p) -> None:
@@ -289,10 +299,18 @@ def with_processes(env_kwargs: dict, processes: int) -> dict:
 def model_for_evaluation(run_dir, which: str = "best") -> tuple[str, Path, Path | None]:
     """(label, model, vecnormalize or None) of a run. ``which`` "best": the
     best model, else the final one, else the last checkpoint; "final": the
-    model at the end of its last session; "last": its last checkpoint."""
+    model at the end of its last session; "last": its last checkpoint; a
+    number of timesteps (as a string of digits): its checkpoint there."""
     run = Path(run_dir)
+    if str(which).isdigit():
+        ckpts = {steps: (model, vn) for steps, model, vn in checkpoints(run)}
+        if int(which) not in ckpts:
+            raise TrainingError(f"run directory {str(run)!r} has no checkpoint at {int(which)} timesteps; it has "
+                                f"{sorted(ckpts) or 'none'}")
+        model, vn = ckpts[int(which)]
+        return f"checkpoint_{int(which)}", model, vn if vn.is_file() else None
     if which not in MODEL_CHOICES:
-        raise TrainingError(f"model must be one of {MODEL_CHOICES}, got {which!r}")
+        raise TrainingError(f"model must be one of {MODEL_CHOICES} or a checkpoint's timesteps, got {which!r}")
     if which == "best" and (run / BEST_MODEL).is_file():
         vn = run / BEST_VECNORM if (run / BEST_VECNORM).is_file() else run / FINAL_VECNORM
         return "best_model", run / BEST_MODEL, vn if vn.is_file() else None

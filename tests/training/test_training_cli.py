@@ -406,14 +406,22 @@ def test_push_trial_comparison_counts_each_trial_against_each_baseline():
 
 
 def test_model_option_picks_best_final_or_last(tiny_run, tmp_path):
-    """--model best (the default), final or last: the evaluation names the
-    model it loaded; a run without the one asked for is a clear error."""
+    """--model best (the default), final, last or a checkpoint's timesteps:
+    the evaluation names the model it loaded; a run without the one asked
+    for is a clear error, naming the checkpoints it has."""
     from training import common
 
+    first = common.checkpoints(tiny_run)[0][0]
     labels = {which: evaluate.main([str(tiny_run), "--episodes", "1", "--num-envs", "1", "--no-baselines",
-                                    "--model", which])["model"] for which in ("best", "final", "last")}
+                                    "--model", which])["model"] for which in ("best", "final", "last", str(first))}
     last = common.last_checkpoint(tiny_run)[0]
-    assert labels == {"best": "best_model", "final": "final_model", "last": f"checkpoint_{last}"}
+    assert labels == {"best": "best_model", "final": "final_model", "last": f"checkpoint_{last}",
+                      str(first): f"checkpoint_{first}"}
+    with pytest.raises(SystemExit, match=f"no checkpoint at {first + 1} timesteps; it has \\[{first}"):
+        evaluate.main([str(tiny_run), "--episodes", "1", "--model", str(first + 1)])
+    with pytest.raises(SystemExit) as exc:
+        evaluate.main([str(tiny_run), "--model", "worst"])
+    assert exc.value.code == 2  # argparse names the choices
     bare = tmp_path / "bare"
     bare.mkdir()
     for name in ("config.json", "best_model.zip", "best_vecnormalize.pkl"):
