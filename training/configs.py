@@ -23,7 +23,9 @@ Each entry has:
   alone;
 * ``eval``: ``freq`` (timesteps between evaluations; 0: none, so no
   ``best_model.zip``), ``episodes``, ``num_envs`` of the separate
-  evaluation env;
+  evaluation env and, optionally, ``env_kwargs`` merged over the entry's
+  ``env_kwargs`` for that env only (e.g. harder pushes, so that
+  ``best_model.zip`` is the model best at them);
 * ``checkpoint_freq``: timesteps between checkpoints (0: none but the one
   saved at the end of each session, or at Ctrl-C);
 * ``policy_warmup_steps`` (optional, default 0): for the rollouts collected
@@ -139,7 +141,7 @@ CONFIGS = {
 KEYS = ("num_envs", "processes", "timesteps", "ppo", "normalize", "env_kwargs", "train_env_kwargs", "residual", "eval",
         "checkpoint_freq", "policy_warmup_steps")
 #: the keys of ``eval``
-EVAL_KEYS = ("freq", "episodes", "num_envs")
+EVAL_KEYS = ("freq", "episodes", "num_envs", "env_kwargs")
 #: entries whose value is a mapping: True where null is allowed as well
 MAPPINGS = {"ppo": False, "eval": False, "normalize": True, "env_kwargs": True, "train_env_kwargs": True,
             "residual": True}
@@ -160,14 +162,18 @@ def check_override(override: dict) -> None:
     for key, nullable in MAPPINGS.items():
         if key in override and not (isinstance(override[key], dict) or (nullable and override[key] is None)):
             raise ValueError(f"{key!r} must be a mapping{' or null' if nullable else ''}, got {override[key]!r}")
-    for key in ("env_kwargs", "train_env_kwargs"):
-        if "processes" in (override.get(key) or {}):
-            raise ValueError(f"processes goes at the top level of the config, not in {key!r}: "
-                             f"{{\"processes\": N}} steps the training and the evaluation env alike")
     unknown = [k for k in override.get("eval") or {} if k not in EVAL_KEYS]
     if unknown:
         raise ValueError(f"unknown key{'s' if len(unknown) > 1 else ''} {', '.join(map(repr, unknown))} in "
                          f"\"eval\"; its keys are {', '.join(EVAL_KEYS)}")
+    eval_kwargs = (override.get("eval") or {}).get("env_kwargs")
+    if eval_kwargs is not None and not isinstance(eval_kwargs, dict):
+        raise ValueError(f"'eval.env_kwargs' must be a mapping or null, got {eval_kwargs!r}")
+    for key, kwargs in (("env_kwargs", override.get("env_kwargs")), ("train_env_kwargs", override.get("train_env_kwargs")),
+                        ("eval.env_kwargs", eval_kwargs)):
+        if "processes" in (kwargs or {}):
+            raise ValueError(f"processes goes at the top level of the config, not in {key!r}: "
+                             f"{{\"processes\": N}} steps the training and the evaluation env alike")
 
 
 def merge(base: dict, override: dict) -> dict:

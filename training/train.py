@@ -211,7 +211,8 @@ def _make_envs(env_id, cfg, num_envs, seed, evaluation: bool = True):
                                 cfg.get("residual"))
         if evaluation:
             n_eval = int(cfg["eval"].get("num_envs", 1))
-            eval_venv = residual_vec_env(make_sb3_vec_env(env_id, num_envs=n_eval, seed=seed + 100_000, **env_kwargs),
+            eval_kwargs = {**env_kwargs, **(cfg["eval"].get("env_kwargs") or {})}  # no processes in it (check_override)
+            eval_venv = residual_vec_env(make_sb3_vec_env(env_id, num_envs=n_eval, seed=seed + 100_000, **eval_kwargs),
                                          cfg.get("residual"))
     except (TypeError, ValueError, RuntimeError, OSError) as exc:
         for v in (venv, eval_venv):

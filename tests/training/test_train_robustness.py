@@ -53,6 +53,10 @@ def _tiny(tmp_path, cfg, **changes) -> str:
     ({"eval": {"num_envs": 0}}, "eval.num_envs must be a whole number >= 1, got 0"),
     ({"ppo": {"batch_size": "many"}}, "bad PPO settings"),
     ({"normalize": {"bogus": 1}}, "bad normalize settings"),
+    ({"eval": {"freq": 64, "episodes": 1, "num_envs": 1, "env_kwargs": {"bogus": 1}}},
+     "unknown keyword argument 'bogus'"),
+    ({"eval": {"env_kwargs": [1]}}, "'eval.env_kwargs' must be a mapping or null"),
+    ({"eval": {"env_kwargs": {"processes": 2}}}, "processes goes at the top level of the config, not in 'eval.env_kwargs'"),
 ])
 def test_failed_start_writes_nothing(tmp_path, bad, message):
     run = tmp_path / "run"

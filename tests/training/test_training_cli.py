@@ -430,6 +430,27 @@ def test_model_option_picks_best_final_or_last(tiny_run, tmp_path):
         evaluate.main([str(bare), "--episodes", "1", "--model", "final"])
 
 
+def test_eval_env_kwargs_change_the_evaluation_env_only(tiny_run, tiny_config, tmp_path):
+    """eval.env_kwargs is merged over env_kwargs for the training's
+    evaluation env alone: 3-step evaluation episodes here, while the
+    training env keeps the config's 50 steps (and the evaluations of the
+    run without it last longer than 3)."""
+    import csv
+
+    cfg = json.loads(tiny_config.read_text())
+    cfg["eval"]["env_kwargs"] = {"max_episode_steps": 3}
+    path = tmp_path / "short_eval.json"
+    path.write_text(json.dumps(cfg))
+    run = tmp_path / "short"
+    train.main([ENV, "--timesteps", "512", "--num-envs", "4", "--seed", "3", "--out", str(run), "--config", str(path),
+                "--no-progress-bar"])
+    with np.load(run / "eval" / "evaluations.npz") as short, np.load(tiny_run / "eval" / "evaluations.npz") as full:
+        assert short["ep_lengths"].max() == 3 and full["ep_lengths"].max() > 3
+    with open(run / "train_0.monitor.csv") as f:
+        lengths = [int(r["l"]) for r in csv.DictReader(line for line in f if not line.startswith("#"))]
+    assert max(lengths) > 3  # the training env's episodes are not cut at 3
+
+
 def test_push_sweep_and_trials_need_a_balance_run(tiny_run):
     from training import push_sweep, push_trials
 
