@@ -250,7 +250,7 @@ MODEL_CHOICES = ("best", "final", "last")
 
 
 def add_model_argument(p) -> None:
-    """``--model {best,final,last}`` of the evaluation CLIs."""
+    """``--model {best,final,last,STEPS}`` of the evaluation CLIs."""
     p.add_argument("--model", type=model_choice, default="best", metavar="{best,final,last,STEPS}",
                    help="which model of the run: best (the default; else final, else the last checkpoint), final "
                         "(at the end of its last session), last (its last checkpoint) or STEPS (its checkpoint at "

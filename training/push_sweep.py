@@ -115,6 +115,7 @@ def sweep(args) -> dict:
         raise C.TrainingError(f"--strengths must be >= 0 N·s, got {args.strengths}")
     t0 = time.time()
     run, saved = balance_run(args.run_dir)
+    processes = C.run_processes(args.processes, saved)
     env_id = saved["env_id"]
     base_kwargs = dict(saved["config"].get("env_kwargs") or {})
     if args.push_interval is not None:
@@ -126,7 +127,7 @@ def sweep(args) -> dict:
         env_kwargs = {**base_kwargs, "push_strength": (s, s) if s > 0 else 0.0}
         results = {}
         for ctrl in controllers(run, saved, num_envs, args.seed, env_kwargs, args.baselines, args.deterministic,
-                                args.model, C.run_processes(args.processes, saved)):
+                                args.model, processes):
             results[ctrl.name] = rollout(ctrl.env, ctrl.act, args.episodes)
             if ctrl.agent is not None:
                 model_label, model_steps = ctrl.agent.label, int(ctrl.agent.model.num_timesteps)
