@@ -14,8 +14,11 @@ batched :class:`engine.state.State`.
 
 from __future__ import annotations
 
+import copy
+import functools
 import math
-from dataclasses import dataclass, field, replace
+from collections.abc import Mapping
+from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
 
@@ -71,6 +74,40 @@ def _scalar(value, what, name, minimum=None, allow_inf=False, strict=False):
         op = ">" if strict else ">="
         raise SceneError(f"{what}: {name} must be {op} {minimum}, got {value!r}")
     return v
+
+
+def _bits(value, what, name):
+    """A collision group or mask: a whole number in [0, 2³²)."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or not 0 <= value < 2 ** 32:
+        raise SceneError(f"{what}: {name} must be a whole number in [0, 2**32) (a bit set), got {value!r}")
+    return int(value)
+
+
+def _settings_from(values, what, base=None):
+    """``base`` (default ``Settings()``) with the fields in the mapping ``values``
+    replaced; an unknown field is a SceneError naming it and the known ones."""
+    known = {f.name for f in fields(Settings)}
+    unknown = sorted(set(values) - known)
+    if unknown:
+        raise SceneError(f"{what}: unknown settings {unknown}; settings: {sorted(known)}")
+    return replace(Settings() if base is None else base, **values)
+
+
+def _undo_world_body_on_error(method):
+    """Leave the builder as it was when ``method`` raises: naming the world
+    (``None``) as a joint's or spring's body adds the world body first."""
+    @functools.wraps(method)
+    def wrapper(self, *args, **kwargs):
+        bodies, world = len(self.bodies), self._world_body
+        try:
+            return method(self, *args, **kwargs)
+        except Exception:
+            for spec in self.bodies[bodies:]:
+                del self._names[spec.name]
+            del self.bodies[bodies:]
+            self._world_body = world
+            raise
+    return wrapper
 
 
 @dataclass
@@ -129,14 +166,22 @@ class SceneBuilder:
 
     gravity: a 3-vector in m/s² (default (0, 0, -9.80665)), or None for none.
     materials: a :class:`MaterialTable` (default: the textbook table).
-    settings: a :class:`Settings` or keyword overrides of its fields.
+    settings: a :class:`Settings`, or a mapping of its fields' values; keyword
+    overrides of its fields may follow either.
     """
 
     def __init__(self, gravity=(0.0, 0.0, -STANDARD_GRAVITY), materials=None, settings=None, **setting_overrides):
         self.gravity = None if gravity is None else gravity
         self.materials = (materials or MaterialTable()).copy()
-        base = settings if isinstance(settings, Settings) else Settings()
-        self.settings = replace(base, **setting_overrides) if setting_overrides else base
+        if settings is None:
+            base = Settings()
+        elif isinstance(settings, Settings):
+            base = settings
+        elif isinstance(settings, Mapping):
+            base = _settings_from(settings, "settings")
+        else:
+            raise SceneError(f"settings must be a Settings or a mapping of its fields, got {type(settings).__name__}")
+        self.settings = _settings_from(setting_overrides, "setting", base) if setting_overrides else base
         self.bodies: list[BodySpec] = []
         self.springs: list[SpringSpec] = []
         self.joints: list[JointSpec] = []
@@ -207,6 +252,8 @@ class SceneBuilder:
             m, inertia = math.inf, np.full(3, math.inf)
             if np.any(vel) or np.any(avel):
                 raise SceneError(f"{what}: a static body cannot have a velocity")
+            if mass is not None or density is not None:
+                raise SceneError(f"{what}: a static body has no mass; leave out mass and density")
         else:
             if mass is not None and density is not None:
                 raise SceneError(f"{what}: give mass or density, not both")
@@ -219,7 +266,8 @@ class SceneBuilder:
             inertia = m * shape.unit_inertia()
         self.bodies.append(
             BodySpec(name, shape, m, inertia, pos, quat, vel, avel, material, bool(static),
-                     lin_d, ang_d, int(collision_group), int(collision_mask))
+                     lin_d, ang_d, _bits(collision_group, what, "collision_group"),
+                     _bits(collision_mask, what, "collision_mask"))
         )
         if lin_d > 0 or ang_d > 0:
             self.effects.setdefault("damping", {})
@@ -276,6 +324,7 @@ class SceneBuilder:
             raise SceneError(f"{kind} {name!r}: a {kind} of that name already exists")
 
     # ---------------------------------------------------------------- springs
+    @_undo_world_body_on_error
     def add_spring(self, name: str, body_a, body_b, anchor_a=None, anchor_b=None,
                    stiffness: float = 100.0, damping: float = 0.0, rest_length: float | None = None,
                    elastic_limit: float = math.inf) -> int:
@@ -326,11 +375,12 @@ class SceneBuilder:
         return ip, ic, self._local_point(ip, p), self._local_point(ic, p), fp, fc
 
     def _joint_common(self, what, max_torque, n_axes, damping, stiffness, break_force, break_torque):
-        mt = np.broadcast_to(np.asarray(max_torque, dtype=float), (n_axes,)) if np.ndim(max_torque) == 0 \
-            else _vec(max_torque, n_axes, what, "max_torque")
-        mt = np.array(mt, dtype=float)
-        if not np.all(np.isfinite(mt)) or np.any(mt < 0):
-            raise SceneError(f"{what}: max_torque must be finite and >= 0, got {max_torque!r}")
+        if np.ndim(max_torque) == 0:
+            mt = np.full(n_axes, _scalar(max_torque, what, "max_torque", minimum=0.0))
+        else:
+            mt = np.array(_vec(max_torque, n_axes, what, "max_torque"), dtype=float)
+            if np.any(mt < 0):
+                raise SceneError(f"{what}: max_torque must be >= 0 on every axis, got {max_torque!r}")
         return dict(
             max_torque=np.concatenate((mt, np.zeros(3 - n_axes))),
             damping=_scalar(damping, what, "damping", minimum=0.0),
@@ -349,6 +399,7 @@ class SceneBuilder:
             raise SceneError(f"{what}: {name} must lie within [{lo_bound:g}, {hi_bound:g}] rad, got {value!r}")
         return r
 
+    @_undo_world_body_on_error
     def add_hinge(self, name: str, parent, child, anchor=None, axis=(0.0, 1.0, 0.0), limits=None,
                   max_torque: float = 0.0, damping: float = 0.0, stiffness: float = 0.0,
                   rest_angle: float = 0.0, break_force: float = math.inf, break_torque: float = math.inf,
@@ -376,6 +427,7 @@ class SceneBuilder:
                                      collide_connected=bool(collide_connected), **common))
         return len(self.joints) - 1
 
+    @_undo_world_body_on_error
     def add_ball(self, name: str, parent, child, anchor=None, twist_axis=(0.0, 0.0, 1.0),
                  swing_limits=None, twist_limits=None, max_torque=0.0, damping: float = 0.0,
                  stiffness: float = 0.0, break_force: float = math.inf, break_torque: float = math.inf,
@@ -408,6 +460,7 @@ class SceneBuilder:
                                      collide_connected=bool(collide_connected), **common))
         return len(self.joints) - 1
 
+    @_undo_world_body_on_error
     def add_fixed(self, name: str, parent, child, anchor=None, break_force: float = math.inf,
                   break_torque: float = math.inf, collide_connected: bool = False) -> int:
         """A fixed joint (0 DOF) holding the child's pose relative to the parent."""
@@ -425,8 +478,10 @@ class SceneBuilder:
 
         "gravity" (uniform, set by the builder's ``gravity``), "gravitation"
         (pairwise Newtonian attraction, ``G`` defaults to 6.6743e-11 and
-        ``softening`` to 0 m), "damping", "contacts", "friction",
-        "restitution", "self_collision".
+        ``softening`` to 0 m), "damping", "contacts" (which brings
+        "friction" and "restitution" with it, as ``add_ground`` does: drop
+        either with ``disable``), "friction", "restitution", "self_collision".
+        Without "contacts" (or a ground) bodies pass through each other.
         """
         if effect not in DECLARABLE_EFFECTS:
             raise SceneError(
@@ -445,6 +500,11 @@ class SceneBuilder:
         elif params:
             raise SceneError(f"effect {effect!r} takes no parameters, got {sorted(params)}")
         self.effects[effect] = params
+        if effect == "contacts":
+            # Contacts come with the materials' friction and restitution, as with
+            # add_ground; disable("friction") or disable("restitution") drops one.
+            for implied in ("friction", "restitution"):
+                self.effects.setdefault(implied, {})
 
     def disable(self, effect: str) -> None:
         """Remove a declared effect (gravity, contacts, friction, restitution, ...).
@@ -478,4 +538,6 @@ class SceneBuilder:
         if self.gravity is not None:
             g = _vec(self.gravity, 3, "scene", "gravity")
             self.gravity = g
-        return compile_model(self)
+        # The model keeps a copy: later changes to this builder do not reach it
+        # (nor its with_settings, nor humanoid.pose reading the scene through it).
+        return compile_model(copy.deepcopy(self))

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .math3d import cross
+from .state import world_index
 
 
 @dataclass
@@ -93,9 +94,7 @@ def apply_impulse(model, state, body, impulse, point=None, worlds=None):
     if not np.all(np.isfinite(J)):
         raise ValueError("impulse has a NaN or infinite entry")
     if worlds is not None:
-        idx = np.asarray(worlds, dtype=np.int64).reshape(-1)
-        if idx.size and (idx.min() < -W or idx.max() >= W):
-            raise IndexError(f"apply_impulse: world index out of range for {W} worlds: {idx.tolist()}")
+        idx = world_index(worlds, W)  # indices, slice or boolean mask, as State.select
         mask = np.zeros(W, dtype=bool)
         mask[idx] = True
         J[~mask] = 0.0

@@ -453,6 +453,9 @@ class JointSet:
         ia_all, ib_all = self._iinv.take(a_all, 1), self._iinv.take(b_all, 1)
         k, c = self.stiffness[order], self.damping[order]
         err = self.angles(state, order) - self.rest[order]
+        # The short way round to the rest angle (angles lie in [-π, π]): a hinge
+        # beyond π from it would otherwise be pushed the long way and gain energy.
+        err = np.where(np.abs(err) > np.pi, err - 2.0 * np.pi * np.round(err / (2.0 * np.pi)), err)
         use = self._active(state, order)[..., None] * self._passive_use
         axes, terms = [], []
         for n, e in enumerate((EX, EY, EZ)):

@@ -44,6 +44,10 @@ class Material:
                 )
         if self.restitution > 1.0:
             raise ValueError(f"material {self.name!r}: restitution must be <= 1, got {self.restitution}")
+        if self.kinetic_friction > self.static_friction:
+            raise ValueError(f"material {self.name!r}: kinetic_friction {self.kinetic_friction} exceeds "
+                             f"static_friction {self.static_friction} (a sliding contact never holds more "
+                             f"than a resting one)")
         if self.density <= 0:
             raise ValueError(f"material {self.name!r}: density must be > 0, got {self.density}")
 

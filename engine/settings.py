@@ -498,7 +498,11 @@ class Settings:
     def validate(self) -> None:
         for f in fields(self):
             v = getattr(self, f.name)
-            if v is None or isinstance(v, bool) or isinstance(v, str):
+            if isinstance(f.default, str):
+                if not isinstance(v, str):
+                    raise ValueError(f"settings: {f.name} must be a string, got {v!r}")
+                continue
+            if v is None or isinstance(v, bool):
                 continue
             if not isinstance(v, (int, float)) or math.isnan(v):
                 raise ValueError(f"settings: {f.name} must be a number, got {v!r}")

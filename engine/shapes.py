@@ -25,7 +25,12 @@ SHAPE_NAMES = {SPHERE: "sphere", CAPSULE: "capsule", BOX: "box", PLANE: "plane",
 
 
 def _positive(name: str, value: float, what: str) -> float:
-    value = float(value)
+    try:
+        if isinstance(value, (str, bytes)):
+            raise TypeError
+        value = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{what}: {name} must be a positive finite number, got {value!r}") from None
     if not math.isfinite(value) or value <= 0.0:
         raise ValueError(f"{what}: {name} must be a positive finite number, got {value!r}")
     return value

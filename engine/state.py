@@ -13,7 +13,7 @@ new state), ``worlds`` (a slice of them, as views), ``assign`` (write another st
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -73,10 +73,13 @@ class State:
         return State({k: v.copy() for k, v in self.arrays.items()}, list(self.events))
 
     def select(self, worlds) -> "State":
-        """A new state holding only ``worlds`` (indices, slice or boolean mask)."""
-        idx = _world_index(worlds, self.num_worlds)
-        return State({k: v[idx].copy() for k, v in self.arrays.items()},
-                     [e for e in self.events if _contains(idx, e.world, self.num_worlds)])
+        """A new state holding only ``worlds`` (indices, slice or boolean mask);
+        its events are those of the selected worlds, numbered as in the new state."""
+        idx = world_index(worlds, self.num_worlds)
+        picked = np.arange(self.num_worlds)[idx]  # old world of each new one (negative indices resolved)
+        events = [replace(e, world=new) for new, old in enumerate(picked.tolist())
+                  for e in self.events if e.world == old]
+        return State({k: v[idx].copy() for k, v in self.arrays.items()}, events)
 
     def worlds(self, lo: int, hi: int) -> "State":
         """Worlds [lo, hi) as a state of views: stepping it steps them here."""
@@ -88,10 +91,18 @@ class State:
         ``other`` has either as many worlds as are selected, or one world,
         which is then copied into each selected world.
         """
-        idx = _world_index(worlds, self.num_worlds)
+        idx = world_index(worlds, self.num_worlds)
+        selected = np.arange(self.num_worlds)[idx].size
+        if other.num_worlds not in (1, selected):
+            raise ValueError(f"cannot assign a state of {other.num_worlds} worlds to {selected} selected "
+                             f"worlds: give one world or as many as are selected")
         for k, v in self.arrays.items():
             if k not in other.arrays:
                 raise ValueError(f"cannot assign: the other state lacks field {k!r}")
+            if other.arrays[k].shape[1:] != v.shape[1:]:
+                raise ValueError(f"cannot assign: field {k!r} holds {other.arrays[k].shape[1:]} per world in "
+                                 f"the other state and {v.shape[1:]} here (a state of another model?)")
+        for k, v in self.arrays.items():
             v[idx] = other.arrays[k]
 
     def nonfinite_worlds(self) -> np.ndarray:
@@ -134,7 +145,9 @@ for _name in CORE_FIELDS:
     setattr(State, _name, _core_array(_name))
 
 
-def _world_index(worlds, num_worlds):
+def world_index(worlds, num_worlds):
+    """Worlds given as indices (negative ones count from the end), a slice or
+    a boolean mask of ``num_worlds``, as an index for the state's arrays."""
     if isinstance(worlds, slice):
         return worlds
     arr = np.asarray(worlds)
@@ -146,9 +159,3 @@ def _world_index(worlds, num_worlds):
     if arr.size and (arr.min() < -num_worlds or arr.max() >= num_worlds):
         raise IndexError(f"world index out of range for {num_worlds} worlds: {arr}")
     return arr
-
-
-def _contains(idx, world, num_worlds):
-    if isinstance(idx, slice):
-        return world in range(*idx.indices(num_worlds))
-    return world in set(int(i) for i in idx)

@@ -233,6 +233,9 @@ def _nonfinite_error(model, state, bad_worlds):
     for k in ("position", "orientation", "velocity", "angular_velocity"):
         a = state.arrays[k][w]
         per_body |= ~np.isfinite(a).all(axis=-1)
+    if (per_body & model.dynamic).any():
+        # Static bodies turn non-finite only by 0 · NaN from a moving one: name the moving ones.
+        per_body &= model.dynamic
     bodies = [model.body_names[i] for i in np.flatnonzero(per_body)]
     step_no = int(state.step[w])
     return SimulationError(

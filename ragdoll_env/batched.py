@@ -40,7 +40,7 @@ def check_action(action, shape) -> np.ndarray:
     shape, a non-numeric value, NaN or infinity."""
     try:
         a = np.asarray(action)
-        if a.dtype == object or not (np.issubdtype(a.dtype, np.number) or a.dtype == bool):
+        if a.dtype == object or np.iscomplexobj(a) or not (np.issubdtype(a.dtype, np.number) or a.dtype == bool):
             raise TypeError(f"dtype {a.dtype}")
         a = a.astype(np.float64)
     except (TypeError, ValueError) as exc:
@@ -142,7 +142,9 @@ class BatchedSim:
         self.last_push_time = np.full(W, -np.inf)
         self.pushes = np.zeros(W, dtype=np.int64)
         self.pushes_survived = np.zeros(W, dtype=np.int64)
-        self.pushes_pending = np.zeros(W, dtype=np.int64)
+        # Times (s) of each world's pushes not yet survived, NaN in free slots;
+        # a column more whenever a world has more pushes pending than slots.
+        self.pending_push_times = np.full((W, 1), np.nan)
         self.last_obs = np.zeros((W, self.observation_size), dtype=np.float32)
 
     # ------------------------------------------------------------ properties
@@ -196,7 +198,7 @@ class BatchedSim:
         self.last_push_time[worlds] = -np.inf
         self.pushes[worlds] = 0
         self.pushes_survived[worlds] = 0
-        self.pushes_pending[worlds] = 0
+        self.pending_push_times[worlds] = np.nan
         obs = task.observe(model, self.state.select(worlds)).astype(np.float32)
         if not np.all(np.isfinite(obs)):
             raise FloatingPointError(f"{task.env_id}: the reset state of worlds {worlds.tolist()} is not finite")
@@ -231,8 +233,14 @@ class BatchedSim:
             sel = np.flatnonzero(applied & (body == b))
             engine.apply_impulse(self.model, self.state, int(b), impulse, worlds=sel)
         self.pushes[applied] += 1
-        self.pushes_pending[applied] += 1
         self.last_push_time[applied] = t[applied]
+        if applied.any():
+            free = np.isnan(self.pending_push_times[applied])
+            if not free.any(axis=1).all():
+                self.pending_push_times = np.pad(self.pending_push_times, ((0, 0), (0, 1)), constant_values=np.nan)
+                free = np.isnan(self.pending_push_times[applied])
+            worlds = np.flatnonzero(applied)
+            self.pending_push_times[worlds, np.argmax(free, axis=1)] = t[worlds]
         return applied, impulse, body
 
     def close(self) -> None:
@@ -285,9 +293,12 @@ class BatchedSim:
             self.state.assign(np.flatnonzero(bad), self._template)
         terminated = ~healthy
         t = self.time()
-        recovered = healthy & (self.pushes_pending > 0) & (t - self.last_push_time >= self.push_recovery_time - 1e-9)
-        self.pushes_survived[recovered] += self.pushes_pending[recovered]
-        self.pushes_pending[recovered] = 0
+        # Each push counts as survived once its world has stayed healthy for
+        # push_recovery_time after it, whatever pushes came since.
+        with np.errstate(invalid="ignore"):
+            recovered = healthy[:, None] & (t[:, None] - self.pending_push_times >= self.push_recovery_time - 1e-9)
+        self.pushes_survived += recovered.sum(axis=1)
+        self.pending_push_times[recovered] = np.nan
         if self.max_episode_steps is None:
             truncated = np.zeros(W, dtype=bool)
         else:

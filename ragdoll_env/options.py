@@ -21,6 +21,8 @@ from __future__ import annotations
 import math
 from dataclasses import fields
 
+import numpy as np
+
 from engine.settings import Settings
 
 #: Engine settings accepted as keyword arguments (check_finite is the env's business).
@@ -92,7 +94,7 @@ def integer(name, value, minimum=None) -> int:
 
 
 def flag(name, value) -> bool:
-    if not isinstance(value, (bool, int)) or value not in (0, 1, True, False):
+    if not isinstance(value, (bool, int, np.bool_)) or value not in (0, 1, True, False):
         raise ValueError(f"{name} must be True or False, got {value!r}")
     return bool(value)
 

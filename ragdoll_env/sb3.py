@@ -19,6 +19,8 @@ built.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from . import options as opt
@@ -75,6 +77,7 @@ def _sb3_class():
                                  "(VecEnv.render(mode='human') shows those frames)")
             if max_episode_steps is _DEFAULT:
                 max_episode_steps = tcls.max_episode_steps
+            num_envs = opt.integer("num_envs", num_envs, minimum=1)
             self.core, _ = BatchedSim.from_kwargs(tcls, num_envs, kwargs, max_episode_steps=max_episode_steps,
                                                   where=tcls.env_id)
             t = self.core.task
@@ -99,7 +102,8 @@ def _sb3_class():
 
         @property
         def max_return(self):
-            steps = self.core.max_episode_steps or self.core.task.max_episode_steps
+            """The largest reward per step times the episode length (inf without truncation)."""
+            steps = math.inf if self.core.max_episode_steps is None else self.core.max_episode_steps
             return self.core.task.max_reward_per_step * steps
 
         # ---------------------------------------------------- VecEnv API

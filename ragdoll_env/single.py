@@ -55,8 +55,10 @@ class RagdollEnv(CoreAccess, gym.Env):
             self._viewer = HumanViewer(title=task_.env_id, fps=self.metadata["render_fps"])
 
     def _episode_steps(self):
-        # The spec's max_episode_steps, else the task's registered one.
-        return getattr(self.spec, "max_episode_steps", None) or self.core.task.max_episode_steps
+        # The task's registered episode length: Gymnasium keeps a length given
+        # to gym.make on its TimeLimit wrapper (env.spec.max_episode_steps),
+        # which the env under it cannot see.
+        return self.core.task.max_episode_steps
 
     # ------------------------------------------------------------ API
     def reset(self, *, seed=None, options=None):

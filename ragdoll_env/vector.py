@@ -54,6 +54,7 @@ class RagdollVectorEnv(CoreAccess, VectorEnv):
                              f"got {autoreset_mode!r}") from None
         if max_episode_steps is _DEFAULT:
             max_episode_steps = tcls.max_episode_steps
+        num_envs = opt.integer("num_envs", num_envs, minimum=1)
         self.core, _ = BatchedSim.from_kwargs(tcls, num_envs, kwargs, max_episode_steps=max_episode_steps)
         self.num_envs = self.core.num_worlds
         self.metadata = {**type(self).metadata, "render_fps": self.core.render_fps,

@@ -95,7 +95,8 @@ def plot(run_dir, out=None, window=20) -> Path:
         drew = True
     if not drew:
         plt.close(fig)
-        raise C.TrainingError(f"{str(run)!r} has no evaluations.npz nor monitor logs to plot yet")
+        raise C.TrainingError(f"{str(run)!r} has nothing to plot yet: no evaluations.npz and no finished "
+                              f"episode in its monitor logs")
     ax.set_xlabel("timesteps")
     ax.set_ylabel("episode return")
     ax.set_title(f"PPO on {env_id} ({run.name})")

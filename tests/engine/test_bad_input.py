@@ -267,6 +267,56 @@ def test_bad_settings(scene, changes, fragment):
         model.with_settings(**changes)
 
 
+@pytest.mark.parametrize("make, exc, fragments", [
+    (lambda: SceneBuilder(settings={"substep": 4}), SceneError, ("unknown settings ['substep']",)),
+    (lambda: SceneBuilder(settings=4), SceneError, ("settings must be a Settings or a mapping", "int")),
+], ids=["unknown-key", "not-a-mapping"])
+def test_builder_settings_argument(make, exc, fragments):
+    with raises(exc, *fragments):
+        make()
+
+
+def test_builder_settings_mapping_is_used():
+    assert SceneBuilder(settings={"dt": 0.01}, substeps=2).settings.dt == 0.01
+    assert SceneBuilder(settings={"dt": 0.01}, substeps=2).settings.substeps == 2
+
+
+def test_string_for_a_number_setting_is_named():
+    b = SceneBuilder(dt="0.1")
+    b.add_body("x", Sphere(0.1), mass=1.0)
+    with raises(SceneError, "dt must be a number", "'0.1'"):
+        b.build()
+
+
+@pytest.mark.parametrize("add, fragments", [
+    (lambda b: b.add_body("q", Sphere("big"), mass=1.0), ("body 'q'", "radius", "'big'")),
+    (lambda b: b.add_body("q", Sphere(0.1), mass=1.0, collision_group="a"), ("body 'q'", "collision_group", "'a'")),
+    (lambda b: b.add_body("q", Sphere(0.1), mass=1.0, collision_mask=-1), ("body 'q'", "collision_mask", "-1")),
+    (lambda b: b.add_hinge("h", None, "a", max_torque="x"), ("joint 'h'", "max_torque", "'x'")),
+    (lambda b: b.add_ball("h", None, "a", max_torque=(1.0, -1.0, 1.0)), ("joint 'h'", "max_torque", ">= 0")),
+    (lambda b: b.add_body("q", Box((0.1, 0.1, 0.1)), mass=3.0, static=True), ("body 'q'", "static body has no mass")),
+    (lambda b: b.materials.add(e.Material("grippy", 0.2, 0.5)), ("material 'grippy'", "kinetic_friction 0.5",
+                                                                   "static_friction 0.2")),
+], ids=["shape-size-string", "group-string", "mask-negative", "max-torque-string", "max-torque-negative-axis",
+        "static-with-mass", "kinetic-above-static"])
+def test_malformed_items_are_named(add, fragments):
+    b = SceneBuilder()
+    b.add_body("a", Sphere(0.1), mass=1.0)
+    with raises((SceneError, ValueError), *fragments):
+        add(b)
+    assert [x.name for x in b.bodies] == ["a"]
+
+
+def test_a_rejected_joint_to_the_world_leaves_no_world_body():
+    b = SceneBuilder()
+    b.add_body("a", Sphere(0.1), mass=1.0)
+    with raises(SceneError, "joint 'h'", "axis has zero length"):
+        b.add_hinge("h", None, "a", axis=(0, 0, 0))
+    assert [x.name for x in b.bodies] == ["a"]
+    b.add_body("world", Sphere(0.1), mass=1.0)  # the name is free: no stray body took it
+    assert b.build().num_bodies == 2
+
+
 def test_unknown_setting(scene):
     model, _ = scene
     with raises(TypeError, "'substep'"):
@@ -319,7 +369,7 @@ def test_bad_gym_make_values(kwargs, fragment):
 
 
 def test_bad_num_envs():
-    with raises(ValueError, "num_worlds must be >= 1", "0"):
+    with raises(ValueError, "num_envs must be >= 1", "0"):
         gym.make_vec(PENDULUM, num_envs=0, vectorization_mode="vector_entry_point")
 
 
@@ -328,7 +378,8 @@ def test_bad_num_envs():
     (np.array([math.nan]), ("action has a NaN or infinite entry", "(0,)")),
     (np.array([math.inf]), ("action has a NaN or infinite entry",)),
     (np.array(["x"]), ("action must be a numeric array", "<U1")),
-], ids=["shape", "nan", "inf", "string"])
+    (np.array([0.5 + 0.5j]), ("action must be a numeric array", "complex")),
+], ids=["shape", "nan", "inf", "string", "complex"])
 def test_env_step_bad_action(env, action, fragments):
     state = env.unwrapped.state
     before = state.copy()

@@ -24,6 +24,7 @@ from engine import (
     SimulationError,
     Sphere,
     State,
+    apply_impulse,
     simulate,
     step,
 )
@@ -653,3 +654,71 @@ def test_a_diverging_ragdoll_is_reported_not_a_linalg_error():
     for k in range(90):
         step(unchecked, s, Control(motor=np.stack([torques[k // per], np.zeros(model.num_actuators)])))
     assert s.nonfinite_worlds().tolist() == [0]
+
+
+def test_a_built_model_does_not_follow_its_builder():
+    b = SceneBuilder()
+    b.add_body("a", Sphere(0.1), mass=1.0)
+    model = b.build()
+    b.add_body("c", Sphere(0.1), mass=1.0)
+    b.bodies[0].mass = 50.0
+    again = model.with_settings(dt=0.01)
+    assert model.num_bodies == again.num_bodies == 1
+    assert model.mass[0] == again.mass[0] == 1.0
+
+
+def test_nonfinite_error_names_the_moving_bodies_not_the_static_ones():
+    # A NaN on a jointed rod reaches the static world body through 0 · NaN;
+    # the error names the rod.
+    b = SceneBuilder(gravity=None)
+    b.add_body("rod", Capsule(0.05, 0.2), mass=2.0)
+    b.add_hinge("h", None, "rod", anchor=(0, 0, 0.25), axis=(0, 1, 0))
+    model = b.build()
+    s = model.initial_state(2)
+    s.angular_velocity[1, 0, 1] = np.nan
+    with pytest.raises(SimulationError) as info:
+        step(model, s)
+    assert info.value.bodies == ("rod",)
+    assert info.value.worlds == (1,)
+
+
+def events_scene():
+    """A spring that breaks at once in the worlds where its ball starts 1 m out."""
+    b = SceneBuilder(gravity=None)
+    b.add_body("a", Sphere(0.1), mass=1.0)
+    b.add_spring("s", "a", None, anchor_b=(0, 0, 0), stiffness=10.0, elastic_limit=0.01)
+    return b.build()
+
+
+@pytest.mark.parametrize("worlds", [[2], [-1], np.array([False, False, True]), slice(2, 3)],
+                         ids=["index", "negative", "mask", "slice"])
+def test_select_keeps_a_worlds_events_numbered_in_the_new_state(worlds):
+    model = events_scene()
+    s = model.initial_state(3)
+    s.position[2, 0, 0] = 1.0
+    step(model, s)
+    assert [(ev.world, ev.name) for ev in s.events] == [(2, "s")]
+    picked = s.select(worlds)
+    assert [(ev.world, ev.name) for ev in picked.events] == [(0, "s")]
+    assert s.select([0, 2, 2]).events and [ev.world for ev in s.select([0, 2, 2]).events] == [1, 2]
+    assert s.select([0, 1]).events == []
+
+
+def test_assign_names_a_wrong_world_count_or_another_models_state():
+    model = events_scene()
+    s = model.initial_state(3)
+    before = s.copy()
+    with pytest.raises(ValueError, match="state of 3 worlds to 2 selected worlds"):
+        s.assign([0, 1], model.initial_state(3))
+    with pytest.raises(ValueError, match="per world in the other state .* another model"):
+        s.assign([0], two_balls().initial_state(1))
+    assert s.equal(before)
+
+
+@pytest.mark.parametrize("worlds", [np.array([False, True, True]), slice(1, 3), [1, -1]],
+                         ids=["mask", "slice", "indices"])
+def test_apply_impulse_takes_worlds_as_select_does(worlds):
+    model = events_scene()
+    s = model.initial_state(3)
+    apply_impulse(model, s, "a", (2.0, 0.0, 0.0), worlds=worlds)
+    np.testing.assert_array_equal(s.velocity[:, 0, 0], [0.0, 2.0, 2.0])

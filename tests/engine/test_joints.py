@@ -731,3 +731,35 @@ def test_an_ankle_swung_past_150_degrees_with_a_stored_limit_impulse_stays_whole
         fastest = max(fastest, float(np.nan_to_num(np.abs(state.angular_velocity), nan=np.inf).max()))
     assert worst < 0.001
     assert fastest < 300.0
+
+
+def test_a_hinge_spring_pulls_the_short_way_round_and_never_gains_energy():
+    # An unlimited hinge with a spring to 3 rad, released at rest at 0: it
+    # overshoots past ±π, where the angle jumps by 2π. The spring must pull
+    # the short way round (the angle error wrapped into [-π, π]), so the
+    # energy ½Iω² + ½k·err² never rises and the rod settles at its rest angle
+    # (before the wrap it was pushed on round and spun up for good).
+    k, c, rest = 2.0, 0.3, 3.0
+    b = e.SceneBuilder(gravity=None)
+    b.add_body("rod", e.Capsule(0.05, 0.2), mass=2.0)
+    b.add_hinge("h", None, "rod", anchor=(0, 0, 0.25), axis=(0, 1, 0), stiffness=k, damping=c,
+                rest_angle=rest)
+    model = b.build()
+    state = model.initial_state(1)
+    r = 0.25  # anchor to centre, m
+    I_axis = model.inertia[0, 0] + model.mass[0] * r ** 2  # about the hinge (capsule along z, axis y)
+
+    def energy():
+        w = state.angular_velocity[0, 0] @ np.array([0.0, 1.0, 0.0])
+        err = model.joints.angles(state)[0, 0, 0] - rest
+        err = (err + np.pi) % (2 * np.pi) - np.pi
+        return 0.5 * I_axis * w ** 2 + 0.5 * k * err ** 2
+
+    e0, crossed = energy(), False
+    for _ in range(1200):
+        e.step(model, state)
+        crossed |= abs(model.joints.angles(state)[0, 0, 0]) > 3.1
+        assert energy() <= e0 * (1 + 1e-3) + 1e-9
+    assert crossed
+    assert abs(state.angular_velocity[0, 0, 1]) < 0.05
+    assert abs(model.joints.angles(state)[0, 0, 0] - rest) < 0.05

@@ -404,3 +404,22 @@ def test_standing_pd_steadies_a_lifted_foot():
     pd_part = StandingPD(venv, lifted_ankle=1.0, gravity=False, balance=False).act(obs)[0]
     np.testing.assert_allclose(change[diff], 0.75 * pd_part[diff], rtol=1e-5, atol=1e-7)
     assert np.abs(pd_part[diff]).min() > 1e-3
+
+
+def test_each_push_counts_once_its_world_stood_a_second_after_it():
+    """contacts: pushes every 0.5 s, closer than the 1 s recovery time: each push
+    counts once the world has stood 1 s after it, whatever pushes came since
+    (it used to wait for 1 s after the latest push, and counted none here)."""
+    env = balance(push_strength=3.0, push_interval=(0.5, 0.5), max_episode_steps=300)
+    needs_contacts(env)
+    obs, _ = env.reset(seed=0)
+    pd = StandingPD(env)
+    while True:
+        obs, _, term, trunc, info = env.step(pd.act(obs))
+        if term or trunc:
+            break
+    assert trunc and not term
+    length = 300 * env.unwrapped.dt  # 5 s
+    push_times = 0.5 * np.arange(1, info["pushes"] + 1)
+    assert info["pushes"] == 9
+    assert info["pushes_survived"] == int(np.sum(push_times + 1.0 <= length + 1e-9))  # all but the last

@@ -224,3 +224,12 @@ def test_vector_env_in_worker_processes_equals_one_process():
     assert two.unwrapped.core._stepper is None
     with pytest.raises(ValueError, match="processes must be >= 1"):
         make_vec("Ragdoll/Balance-v0", processes=0)
+
+
+@pytest.mark.parametrize("steps, expected", [(None, np.inf), (50, 50)])
+def test_max_return_follows_the_vector_envs_episode_length(steps, expected):
+    env = make_vec("Ragdoll/InvertedPendulum-v0", num_envs=2, max_episode_steps=steps)
+    try:
+        assert env.max_return == expected * env.max_reward_per_step
+    finally:
+        env.close()

@@ -529,3 +529,20 @@ def test_a_residual_baseline_argument_added_since_a_run_reads_as_trained(tmp_pat
         "lifted_ankle": 1.0}
     # New runs record the value they train with.
     assert CONFIGS["Ragdoll/Balance-v0"]["residual"]["kwargs"] == {"lifted_ankle": 0.25}
+
+
+def test_run_files_are_strict_json_and_read_back(tiny_run):
+    # Other languages' parsers reject Infinity and NaN: the run files spell an
+    # infinite setting "inf", and the tools read it back as the float.
+    def reject(constant):
+        raise ValueError(f"non-standard JSON constant {constant}")
+
+    for path in tiny_run.glob("*.json"):
+        json.loads(path.read_text(), parse_constant=reject)
+    recorded = json.loads((tiny_run / common.CONFIG_FILE).read_text())["engine_settings"]
+    infinite = [k for k, v in recorded.items() if v == "inf"]
+    assert infinite  # joint_hertz among them at the defaults
+    current = {k: common.float_from_json(v) for k, v in recorded.items()}
+    assert all(current[k] == math.inf for k in infinite)
+    assert common.settings_changes(recorded, current) == {}
+    assert common.settings_changes(recorded, {**current, infinite[0]: 60.0}) == {infinite[0]: (math.inf, 60.0)}
