@@ -305,14 +305,20 @@ def ball_and_chain(offset=(0, 0, 0), links=10):
                  anchor_bound=0.01)
 
 
-def box_stack(offset=(0, 0, 0), n=20):
+def box_stack(offset=(0, 0, 0), n=20, half=H, name=None, duration=10.0):
     o = np.asarray(offset, float)
     b = _builder(o)
     for i in range(n):
-        b.add_body(f"box{i}", e.Box((H, H, H)), mass=1.0, position=o + (0, 0, H + i * (2 * H + 0.001)))
-    return _make(f"stack_{n}", f"vertical stack of {n} boxes (0.5 m, 1 kg)", b, o,
-                 duration=10.0, quick_duration=3.0, rest_time=2.0, rest_speed=0.05,
-                 energy_tol=_energy_tol(n * 9.81 * H * n), penetration_bound=0.02)
+        b.add_body(f"box{i}", e.Box((half, half, half)), mass=1.0, position=o + (0, 0, half + i * (2 * half + 0.001)))
+    return _make(name or f"stack_{n}", f"vertical stack of {n} boxes ({2 * half:g} m, 1 kg)", b, o,
+                 duration=duration, quick_duration=3.0, rest_time=2.0, rest_speed=0.05,
+                 energy_tol=_energy_tol(n * 9.81 * half * n), penetration_bound=0.02)
+
+
+def small_box_stack(offset=(0, 0, 0)):
+    """The stack of 20 with 20 cm boxes: a column 4 m tall of boxes a fifth
+    of a metre wide, where the 0.5 m boxes' column is 10 m of half-metre ones."""
+    return box_stack(offset, half=0.1, name="stack_20_small", duration=5.0)
 
 
 def pyramid(offset=(0, 0, 0), rows=10):
@@ -684,6 +690,7 @@ SCENES = {
     "mass_ratio_sandwich": mass_ratio_sandwich,
     "ball_and_chain": ball_and_chain,
     "stack_20": box_stack,
+    "stack_20_small": small_box_stack,
     "pyramid_10": pyramid,
     "overlap_recovery": overlap_recovery,
     "overlap_column": overlap_column,

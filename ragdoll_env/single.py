@@ -62,6 +62,9 @@ class RagdollEnv(CoreAccess, gym.Env):
 
     # ------------------------------------------------------------ API
     def reset(self, *, seed=None, options=None):
+        if options:
+            raise ValueError(f"{self.core.task.env_id}: unknown reset options {sorted(options)}; "
+                             f"this env takes none")
         super().reset(seed=seed)
         self.core.rngs[0] = self.np_random
         obs, info = self.core.reset([0])

@@ -87,11 +87,14 @@ class RagdollVectorEnv(CoreAccess, VectorEnv):
         return seeds
 
     def reset(self, *, seed=None, options=None):
+        unknown = sorted(set(options or {}) - {"reset_mask"})
+        if unknown:
+            raise ValueError(f"{self.core.task.env_id}: unknown reset options {unknown}; "
+                             f"this vector env takes 'reset_mask' alone")
         seeds = self._seeds(seed)
         if isinstance(seed, (int, np.integer)) and not isinstance(seed, bool):
             self._np_random, self._np_random_seed = seeding.np_random(int(seed))
-        options = dict(options or {})
-        mask = options.pop("reset_mask", None)
+        mask = options.get("reset_mask") if options else None
         if mask is None:
             worlds = np.arange(self.num_envs)
         else:

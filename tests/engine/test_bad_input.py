@@ -436,3 +436,21 @@ def test_vector_reset_wrong_number_of_seeds(venv):
     with raises(ValueError, "list of 3 seeds", "got 2 seeds"):
         venv.reset(seed=[1, 2])
     unchanged(before, state)
+
+
+def test_env_reset_unknown_option(env):
+    state = env.unwrapped.state
+    before = state.copy()
+    with raises(ValueError, "unknown reset options ['reset_msk']", "takes none"):
+        env.reset(options={"reset_msk": True})
+    unchanged(before, state)
+
+
+def test_vector_reset_unknown_option(venv):
+    state = venv.unwrapped.state
+    before = state.copy()
+    rng = venv.unwrapped.core.rngs[0].bit_generator.state
+    with raises(ValueError, "unknown reset options ['seed']", "'reset_mask' alone"):
+        venv.reset(options={"seed": 3, "reset_mask": np.ones(3, dtype=bool)})
+    unchanged(before, state)
+    assert venv.unwrapped.core.rngs[0].bit_generator.state == rng

@@ -120,7 +120,10 @@ FAST_XFAIL = {}
 #: measured misses of the full scenes: from ``python -m benchmarks.stability --quick``; every
 #: bound is a maximum over the run (the rest bound over [rest_time, end]), so a miss within
 #: the quick duration is a miss of the full duration too.
-SLOW_XFAIL = {}
+SLOW_XFAIL = {
+    "stack_20_small": "the column of 20 cm boxes topples: fastest box 0.96 m/s at 5 s (bound 0.05 from 2 s; "
+                      "8 substeps topple it too, 0.5 m boxes rest)",
+}
 
 
 @pytest.mark.parametrize("name", list(FAST))
