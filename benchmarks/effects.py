@@ -145,6 +145,9 @@ def build(scene, flags, option=None):
     if flags.get("self_collision"):
         if "contacts" not in b.effects:
             b.enable("contacts")
+            for implied in ("friction", "restitution"):  # the scene's flags decide these
+                if not flags.get(implied):
+                    b.disable(implied)
         b.enable("self_collision")
     if flags.get("gravitation"):
         b.enable("gravitation", G=1e-3, softening=0.05)

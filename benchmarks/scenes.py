@@ -306,6 +306,8 @@ def ball_and_chain(offset=(0, 0, 0), links=10):
 
 
 def box_stack(offset=(0, 0, 0), n=20, half=H, name=None, duration=10.0):
+    """A column of ``n`` cubes of half extent ``half`` (m), 1 kg each, 1 mm
+    apart, on the ground; ``duration`` s simulated in the full run."""
     o = np.asarray(offset, float)
     b = _builder(o)
     for i in range(n):

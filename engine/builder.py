@@ -411,7 +411,8 @@ class SceneBuilder:
         axis (right-hand rule), zero at the build pose; ``limits`` = (min, max)
         in radians within [-π, π]. max_torque (N·m) > 0 makes it actuated;
         damping (N·m·s/rad) and stiffness (N·m/rad, towards ``rest_angle``)
-        are passive muscle tone. Past ``break_force`` (N) or ``break_torque``
+        are passive muscle tone (the spring pulls the short way round:
+        ``rest_angle`` counts modulo 2π). Past ``break_force`` (N) or ``break_torque``
         (N·m) of constraint load the joint breaks. ``parent`` may be None for
         the fixed world.
         """
@@ -478,9 +479,10 @@ class SceneBuilder:
 
         "gravity" (uniform, set by the builder's ``gravity``), "gravitation"
         (pairwise Newtonian attraction, ``G`` defaults to 6.6743e-11 and
-        ``softening`` to 0 m), "damping", "contacts" (which brings
-        "friction" and "restitution" with it, as ``add_ground`` does: drop
-        either with ``disable``), "friction", "restitution", "self_collision".
+        ``softening`` to 0 m), "damping", "contacts" (which, when first
+        declared, brings "friction" and "restitution" with it, as
+        ``add_ground`` does: drop either with ``disable`` afterwards),
+        "friction", "restitution", "self_collision".
         Without "contacts" (or a ground) bodies pass through each other.
         """
         if effect not in DECLARABLE_EFFECTS:
@@ -499,12 +501,12 @@ class SceneBuilder:
             self.gravity = (0.0, 0.0, -STANDARD_GRAVITY)
         elif params:
             raise SceneError(f"effect {effect!r} takes no parameters, got {sorted(params)}")
-        self.effects[effect] = params
-        if effect == "contacts":
+        if effect == "contacts" and "contacts" not in self.effects:
             # Contacts come with the materials' friction and restitution, as with
-            # add_ground; disable("friction") or disable("restitution") drops one.
+            # add_ground; disable("friction") or disable("restitution") afterwards drops one.
             for implied in ("friction", "restitution"):
                 self.effects.setdefault(implied, {})
+        self.effects[effect] = params
 
     def disable(self, effect: str) -> None:
         """Remove a declared effect (gravity, contacts, friction, restitution, ...).

@@ -82,7 +82,8 @@ class State:
         return State({k: v[idx].copy() for k, v in self.arrays.items()}, events)
 
     def worlds(self, lo: int, hi: int) -> "State":
-        """Worlds [lo, hi) as a state of views: stepping it steps them here."""
+        """Worlds [lo, hi) as a state of views: stepping it steps them here
+        (without the events: a step of it reports its own)."""
         return State({k: v[lo:hi] for k, v in self.arrays.items()})
 
     def assign(self, worlds, other: "State") -> None:
@@ -117,7 +118,9 @@ class State:
     def concatenate(states) -> "State":
         states = list(states)
         keys = states[0].arrays.keys()
-        return State({k: np.concatenate([s.arrays[k] for s in states], axis=0) for k in keys}, [])
+        offsets = np.cumsum([0] + [s.num_worlds for s in states])
+        events = [replace(e, world=e.world + int(lo)) for s, lo in zip(states, offsets) for e in s.events]
+        return State({k: np.concatenate([s.arrays[k] for s in states], axis=0) for k in keys}, events)
 
     def equal(self, other: "State") -> bool:
         """Bit-for-bit equality of every array."""

@@ -110,6 +110,10 @@ def _sb3_class():
         def reset(self):
             from gymnasium.utils import seeding
 
+            unknown = sorted({k for options in self._options if options for k in options})
+            if unknown:
+                raise ValueError(f"{self.core.task.env_id}: unknown reset options {unknown} "
+                                 f"(from set_options); this env takes none")
             for w, seed in enumerate(self._seeds):
                 if seed is not None:
                     self.core.rngs[w] = seeding.np_random(int(seed))[0]

@@ -202,7 +202,7 @@ def read_run_config(run_dir) -> dict:
     """A run's config.json, its residual entry as trained (``residual_as_trained``)."""
     p = require_run_dir(run_dir) / CONFIG_FILE
     try:
-        saved = json.loads(p.read_text())
+        saved = floats_from_json(json.loads(p.read_text()))
     except Exception as exc:  # noqa: BLE001
         raise TrainingError(f"cannot read {str(p)!r}: {exc}") from exc
     config = saved.get("config") if isinstance(saved, dict) else None
@@ -423,7 +423,16 @@ def float_from_json(value):
     """A value as ``write_json`` wrote it, with "inf" and "-inf" as floats
     again (runs written before 2026-12-06 hold the non-standard Infinity,
     which Python's json reads as a float already)."""
-    return float(value) if value in ("inf", "-inf") else value
+    return float(value) if isinstance(value, str) and value in ("inf", "-inf") else value
+
+
+def floats_from_json(obj):
+    """``float_from_json`` throughout a structure read from a run's JSON file."""
+    if isinstance(obj, dict):
+        return {k: floats_from_json(v) for k, v in obj.items()}
+    if isinstance(obj, list):
+        return [floats_from_json(v) for v in obj]
+    return float_from_json(obj)
 
 
 def _jsonable(obj):

@@ -278,7 +278,7 @@ def _save_checkpoint(model, vecnorm, run: Path, steps: int) -> Path:
 def _stored_summary(run: Path, env_id: str, steps: int, total: int) -> dict:
     """The run's summary.json (when readable), else the little known about it."""
     try:
-        summary = json.loads((run / C.SUMMARY_FILE).read_text())
+        summary = C.floats_from_json(json.loads((run / C.SUMMARY_FILE).read_text()))
     except (OSError, ValueError):
         summary = {"env_id": env_id, "num_timesteps": steps, "timesteps_requested": total}
     summary["run_dir"] = str(run)

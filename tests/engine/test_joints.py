@@ -738,7 +738,7 @@ def test_a_hinge_spring_pulls_the_short_way_round_and_never_gains_energy():
     # overshoots past ±π, where the angle jumps by 2π. The spring must pull
     # the short way round (the angle error wrapped into [-π, π]), so the
     # energy ½Iω² + ½k·err² never rises and the rod settles at its rest angle
-    # (before the wrap it was pushed on round and spun up for good).
+    # (pushed the long way, it would spin up for good).
     k, c, rest = 2.0, 0.3, 3.0
     b = e.SceneBuilder(gravity=None)
     b.add_body("rod", e.Capsule(0.05, 0.2), mass=2.0)

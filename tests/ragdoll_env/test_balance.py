@@ -408,8 +408,8 @@ def test_standing_pd_steadies_a_lifted_foot():
 
 def test_each_push_counts_once_its_world_stood_a_second_after_it():
     """contacts: pushes every 0.5 s, closer than the 1 s recovery time: each push
-    counts once the world has stood 1 s after it, whatever pushes came since
-    (it used to wait for 1 s after the latest push, and counted none here)."""
+    counts once the world has stood 1 s after it, whatever pushes came since,
+    so all but the last (0.5 s before the end) count."""
     env = balance(push_strength=3.0, push_interval=(0.5, 0.5), max_episode_steps=300)
     needs_contacts(env)
     obs, _ = env.reset(seed=0)

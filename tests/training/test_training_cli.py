@@ -546,3 +546,21 @@ def test_run_files_are_strict_json_and_read_back(tiny_run):
     assert all(current[k] == math.inf for k in infinite)
     assert common.settings_changes(recorded, current) == {}
     assert common.settings_changes(recorded, {**current, infinite[0]: 60.0}) == {infinite[0]: (math.inf, 60.0)}
+
+
+def test_an_infinite_env_kwarg_reads_back_as_the_float(tmp_path):
+    # A config with an infinite value (e.g. static_contact_projection_depth
+    # inf, the engine before 2026-12-05) is written as "inf" and must reach
+    # the env as the float again when a tool reads the run.
+    common.write_json(tmp_path / common.CONFIG_FILE, {
+        "env_id": ENV, "config": {"env_kwargs": {"static_contact_projection_depth": math.inf}},
+        "engine_settings": {"joint_hertz": math.inf, "dt": 0.04}})
+    saved = common.read_run_config(tmp_path)
+    assert saved["config"]["env_kwargs"]["static_contact_projection_depth"] == math.inf
+    assert saved["engine_settings"] == {"joint_hertz": math.inf, "dt": 0.04}
+    from ragdoll_env.sb3 import make_sb3_vec_env
+    venv = make_sb3_vec_env(ENV, 1, **saved["config"]["env_kwargs"])
+    try:
+        assert venv.core.settings.static_contact_projection_depth == math.inf
+    finally:
+        venv.close()
