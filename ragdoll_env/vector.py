@@ -137,6 +137,8 @@ class RagdollVectorEnv(CoreAccess, VectorEnv):
             for k, v in info.items():
                 final_info[k] = np.array(v, copy=True)
                 final_info["_" + k] = done.copy()
+                # As SyncVectorEnv: a reset world's top-level info is its reset info (empty here).
+                masks[k] = masks[k] & ~done
             info["final_obs"], masks["final_obs"] = final_obs, done.copy()
             info["final_info"], masks["final_info"] = final_info, done.copy()
             obs[worlds], _ = self.core.reset(worlds)

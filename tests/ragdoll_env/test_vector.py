@@ -80,6 +80,8 @@ def test_same_step_autoreset_reports_final_observation():
     assert trunc.all()
     assert np.array_equal(info["final_obs"][0], o1)
     assert info["_final_obs"].all() and info["final_info"]["_time"].all()
+    # As Gymnasium's SyncVectorEnv: the reset worlds' top-level info is their (empty) reset info.
+    assert not info["_time"].any()
     assert np.array_equal(obs[0], single.reset()[0])
     obs, r, term, trunc, info = envs.step(a)
     assert not trunc.any() and "final_obs" not in info
