@@ -456,7 +456,8 @@ class JointSet:
         # The short way round to the rest angle (angles lie in [-π, π]): a hinge
         # beyond π from it would otherwise be pushed the long way and gain
         # energy. Ball joints rest at zero, so their errors never reach π.
-        err = np.where(np.abs(err) > np.pi, err - 2.0 * np.pi * np.round(err / (2.0 * np.pi)), err)
+        if (np.abs(err) > np.pi).any():
+            err = np.where(np.abs(err) > np.pi, err - 2.0 * np.pi * np.round(err / (2.0 * np.pi)), err)
         use = self._active(state, order)[..., None] * self._passive_use
         axes, terms = [], []
         for n, e in enumerate((EX, EY, EZ)):

@@ -160,7 +160,7 @@ def settings_changes(recorded: dict | None, current: dict) -> dict:
     2026-12-04)."""
     if not recorded:
         return {}
-    recorded = {**ADDED_SETTINGS, **{k: float_from_json(v) for k, v in recorded.items()}}
+    recorded = {**ADDED_SETTINGS, **recorded}
     return {k: (recorded.get(k), v) for k, v in current.items() if k not in recorded or recorded[k] != v}
 
 
@@ -395,28 +395,27 @@ def sigint_ignored():
         signal.signal(signal.SIGINT, signal.default_int_handler if previous is None else previous)
 
 
-#: How write_json spells the floats that strict JSON has no literal for.
-NONFINITE_JSON = {math.inf: "inf", -math.inf: "-inf"}
-
-
 def write_json(path, data) -> None:
     """``data`` as strict JSON (what other languages' parsers read): an
     infinite float is written as the string "inf" or "-inf" and NaN as null
     (``float_from_json`` reads the first two back)."""
     tmp = Path(str(path) + ".tmp")
-    tmp.write_text(json.dumps(_strict_floats(data), indent=2, default=_jsonable, allow_nan=False) + "\n")
+    tmp.write_text(json.dumps(_strict_floats(data), indent=2, allow_nan=False) + "\n")
     os.replace(tmp, path)
 
 
 def _strict_floats(obj):
+    """``obj`` with its non-finite floats spelt as ``write_json`` says and
+    other objects made JSON values (``_jsonable``)."""
     if isinstance(obj, float) and not math.isfinite(obj):
-        return None if math.isnan(obj) else NONFINITE_JSON[obj]
+        return None if math.isnan(obj) else ("inf" if obj > 0 else "-inf")
     if isinstance(obj, dict):
         return {k: _strict_floats(v) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
         return [_strict_floats(v) for v in obj]
-    jsonable = _jsonable(obj) if not isinstance(obj, (str, int, float, bool, type(None))) else obj
-    return obj if jsonable is obj else _strict_floats(jsonable)
+    if isinstance(obj, (str, int, float, bool, type(None))):
+        return obj
+    return _strict_floats(_jsonable(obj))
 
 
 def float_from_json(value):
@@ -427,7 +426,8 @@ def float_from_json(value):
 
 
 def floats_from_json(obj):
-    """``float_from_json`` throughout a structure read from a run's JSON file."""
+    """``float_from_json`` throughout a structure read from a run's JSON file
+    (``read_run_config`` and the summary's reader apply it)."""
     if isinstance(obj, dict):
         return {k: floats_from_json(v) for k, v in obj.items()}
     if isinstance(obj, list):

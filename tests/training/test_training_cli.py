@@ -539,11 +539,12 @@ def test_run_files_are_strict_json_and_read_back(tiny_run):
 
     for path in tiny_run.glob("*.json"):
         json.loads(path.read_text(), parse_constant=reject)
-    recorded = json.loads((tiny_run / common.CONFIG_FILE).read_text())["engine_settings"]
-    infinite = [k for k, v in recorded.items() if v == "inf"]
+    written = json.loads((tiny_run / common.CONFIG_FILE).read_text())["engine_settings"]
+    infinite = [k for k, v in written.items() if v == "inf"]
     assert infinite  # joint_hertz among them at the defaults
-    current = {k: common.float_from_json(v) for k, v in recorded.items()}
-    assert all(current[k] == math.inf for k in infinite)
+    recorded = common.read_run_config(tiny_run)["engine_settings"]
+    current = {k: common.float_from_json(v) for k, v in written.items()}
+    assert all(recorded[k] == current[k] == math.inf for k in infinite)
     assert common.settings_changes(recorded, current) == {}
     assert common.settings_changes(recorded, {**current, infinite[0]: 60.0}) == {infinite[0]: (math.inf, 60.0)}
 
