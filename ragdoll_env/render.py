@@ -723,6 +723,20 @@ def display_available() -> bool:
     return True
 
 
+def open_human_viewer(title: str, fps: float | None = None):
+    """The window of ``render_mode="human"``, or None (with a warning) when
+    no display is available: a headless process keeps stepping and rendering
+    calls return None, as Gymnasium's checker expects of every declared mode."""
+    if not display_available():
+        import warnings
+
+        warnings.warn(f"{title}: render_mode='human' without a display (neither DISPLAY nor "
+                      "WAYLAND_DISPLAY is set); frames are not shown. Use render_mode='rgb_array' "
+                      "headless", RuntimeWarning, stacklevel=3)
+        return None
+    return HumanViewer(title=title, fps=fps)
+
+
 class HumanViewer:
     """A window showing frames (Gymnasium ``render_mode="human"``).
 

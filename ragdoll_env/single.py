@@ -30,8 +30,8 @@ class RagdollEnv(CoreAccess, gym.Env):
 
     task: a Task subclass or a registered id (subclasses fix it).
     render_mode: None, "rgb_array" (``render()`` returns (height, width, 3)
-    uint8 frames, the camera following the body) or "human" (a window; needs
-    a display, else RuntimeError here).
+    uint8 frames, the camera following the body) or "human" (a window; without
+    a display, a RuntimeWarning here and no window).
     **kwargs: the task's, the core's and the engine's keyword arguments (see
     :mod:`ragdoll_env.options`); unknown names raise TypeError.
     """
@@ -50,9 +50,9 @@ class RagdollEnv(CoreAccess, gym.Env):
         self._renderer = None
         self._viewer = None
         if self.render_mode == "human":
-            from .render import HumanViewer
+            from .render import open_human_viewer
 
-            self._viewer = HumanViewer(title=task_.env_id, fps=self.metadata["render_fps"])
+            self._viewer = open_human_viewer(task_.env_id, self.metadata["render_fps"])
 
     def _episode_steps(self):
         # The task's registered episode length: Gymnasium keeps a length given
@@ -90,6 +90,8 @@ class RagdollEnv(CoreAccess, gym.Env):
         if self.render_mode is None:
             gym.logger.warn("render() called without a render_mode; pass render_mode='rgb_array' to gym.make")
             return None
+        if self.render_mode == "human" and self._viewer is None:
+            return None  # headless: nothing to show
         if self._renderer is None:
             self._renderer = self.core.make_renderer(self.width, self.height)
         frame = self.core.render(self._renderer, 0)

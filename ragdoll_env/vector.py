@@ -69,9 +69,9 @@ class RagdollVectorEnv(CoreAccess, VectorEnv):
         self._renderer = None
         self._viewer = None
         if self.render_mode == "human":
-            from .render import HumanViewer
+            from .render import open_human_viewer
 
-            self._viewer = HumanViewer(title=task_.env_id, fps=self.metadata["render_fps"])
+            self._viewer = open_human_viewer(task_.env_id, self.metadata["render_fps"])
 
 
     # ------------------------------------------------------------ API
@@ -151,7 +151,7 @@ class RagdollVectorEnv(CoreAccess, VectorEnv):
         return obs, reward, terminated, truncated, out
 
     def render(self):
-        if self.render_mode is None:
+        if self.render_mode is None or (self.render_mode == "human" and self._viewer is None):
             return None
         if self._renderer is None:
             self._renderer = self.core.make_renderer(self.width, self.height)

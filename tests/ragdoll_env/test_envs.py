@@ -60,6 +60,22 @@ def test_gymnasium_env_checker(env_id):
 
 
 @pytest.mark.parametrize("env_id", ALL_IDS)
+def test_gymnasium_env_checker_with_its_defaults_headless(env_id, monkeypatch):
+    """check_env as a user calls it, render check included: every declared
+    mode is made, "human" too, which without a display warns and shows nothing."""
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    env = gym.make(env_id)
+    with pytest.warns(RuntimeWarning, match="without a display"):
+        gym_check_env(env.unwrapped)
+    env.close()
+    human = gym.make(env_id, render_mode="human")
+    human.reset(seed=0)
+    assert human.render() is None
+    human.close()
+
+
+@pytest.mark.parametrize("env_id", ALL_IDS)
 def test_sb3_env_checker(env_id):
     from stable_baselines3.common.env_checker import check_env
 
