@@ -59,10 +59,15 @@ import math
 
 import numpy as np
 
-from .contact_solver import _coulomb_scale, _separation
 from .math3d import cross, mat_vec
 
 COLUMN_BLOCK = 24  # contact columns per pass of the tree substitution in Z (8 points)
+
+
+def _coulomb_scale(t1, t2, limit):
+    """Factor that brings the tangent impulse (t1, t2) into the disc |λ_t| <= limit."""
+    mag = np.sqrt(t1 * t1 + t2 * t2)
+    return np.where(mag > limit, limit / np.maximum(mag, 1e-30), 1.0)
 
 
 def _first(factors, n, W):
@@ -261,7 +266,7 @@ class ArticulatedContacts:
         """``Settings.articulated_contact_sweeps`` projected Gauss-Seidel sweeps
         over the columns (``contact_solver``'s per-point rules with the
         effective masses 1 / A_ii), then Z Δλ."""
-        sep = self._normal_columns(_separation(state, cr._block(self.rows)))
+        sep = self._normal_columns(cr.separation_of(state, self.rows))
         open_ = sep > 0
         if use_bias and not cr.thesis:
             soft = cr.soft

@@ -165,7 +165,7 @@ class ContactSet:
         """One more relax pass over the rows whose bodies carry no joints
         (``Settings.free_contact_relax_passes``)."""
         if self.rows is not None:
-            self.rows.solve(model, state, h, use_bias=False, colors=self.rows.free_colors())
+            self.rows.solve(model, state, h, use_bias=False, only_free=True)
 
     def end_step(self, model, state, h, events):
         if self.rows is None:

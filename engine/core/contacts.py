@@ -1,0 +1,458 @@
+"""Contact rows in the soft-step solver, one world at a time (after Box2D v3
+``src/contact_solver.c``).
+
+A row is one pair's manifold of up to 4 points sharing a normal n (from body
+a to body b). Per point, with lever arms r_a, r_b fixed for the step and
+v_rel = (v_b + ω_b × r_b) - (v_a + ω_a × r_a):
+
+* normal: Δλ = -m_n s_m (v_rel·n + bias) - s_i λ, λ ≥ 0. The current
+  separation s = s₀ + n·(Δ(x_b + r_b) - Δ(x_a + r_a)) follows the bodies'
+  displacement, so the narrow phase runs once per step. An open point (s > 0)
+  is speculative: bias s/h, rigid (s_m = 1, s_i = 0). A penetrating one is
+  soft in the biased solve (Catto's soft step: bias rate·min(s + slop, 0)
+  capped at the push-out speed, mass and impulse scales s_m, s_i) and rigid
+  with no bias in the relax solve.
+* friction: two tangent rows, the accumulated impulse clamped to the disc
+  |λ_t| ≤ μ λ_n (Coulomb).
+* restitution, once per step after the substeps: the sequential impacts of
+  Guendelman, Bridson & Fedkiw (2003) among free bodies, and, on bodies held
+  by joints, a raise of each bouncing point's separating speed to its target.
+
+Rows are swept in ``order``: by world, then by colour, then by row. Rows of
+one colour share no body, so this gives the same result as sweeping a
+colour's rows together. The arrays of all rows of a step are fields of a
+:class:`ContactRowArrays`; the kernels run one world per ``prange`` iteration,
+each on its own rows (``world_start``) and its own bodies.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+
+from .jit import kernel, parallel_kernel, prange
+from .vec import add, cross, dot, load3, load4, rotate, scale, sub
+
+IMPACT_SWEEPS = 16  # at most this many sweeps of impacts (a row of n balls needs about n/2)
+IMPACT_POINT_PASSES = 32  # at most this many passes over the points of a row in one impact
+IMPACT_PASS_TOLERANCE = 1e-6  # stop the passes when no λ changed by more than this fraction of the largest
+IMPACT_TOLERANCE = 1e-9  # m/s: a loaded point closing faster than this takes an impact
+NORMAL_PASSES = 2  # Gauss-Seidel passes over the normal points of a row between two moving bodies
+
+
+class ContactRowArrays(NamedTuple):
+    """Every contact row of one step (R rows, 4 point slots each). Body
+    indices are within the row's world ``w``; vectors are world-frame."""
+
+    w: np.ndarray  # (R,) int64 world
+    a: np.ndarray  # (R,) int64 body a
+    b: np.ndarray  # (R,) int64 body b
+    dyn_a: np.ndarray  # (R,) bool
+    dyn_b: np.ndarray  # (R,) bool
+    free: np.ndarray  # (R,) bool: neither body is held by a joint
+    inv_ma: np.ndarray  # (R,) 1/kg
+    inv_mb: np.ndarray  # (R,) 1/kg
+    n: np.ndarray  # (R, 3) unit normal from a to b
+    t1: np.ndarray  # (R, 3) unit tangent
+    t2: np.ndarray  # (R, 3) unit tangent n × t1
+    valid: np.ndarray  # (R, 4) bool
+    xa0: np.ndarray  # (R, 3) m, body a's position at the step start
+    xb0: np.ndarray  # (R, 3) m
+    ra: np.ndarray  # (R, 4, 3) m, lever arms at the step start
+    rb: np.ndarray  # (R, 4, 3) m
+    la: np.ndarray  # (R, 4, 3) m, lever arms in body a's frame
+    lb: np.ndarray  # (R, 4, 3) m
+    sep0: np.ndarray  # (R, 4) m, separation at the step start (0 in empty slots)
+    ia: np.ndarray  # (R, 3, 3) world inverse inertia of a at the step start, 1/(kg m²)
+    ib: np.ndarray  # (R, 3, 3)
+    mn: np.ndarray  # (R, 4) kg, normal effective masses (0 in empty slots)
+    mt1: np.ndarray  # (R, 4) kg
+    mt2: np.ndarray  # (R, 4) kg
+    mu: np.ndarray  # (R, 4) friction coefficient of each point this step
+    e: np.ndarray  # (R,) restitution
+    lam_n: np.ndarray  # (R, 4) N s, accumulated normal impulse of the substep
+    lam_t1: np.ndarray  # (R, 4) N s
+    lam_t2: np.ndarray  # (R, 4) N s
+    max_lam_n: np.ndarray  # (R, 4) N s, the largest λ_n of the step so far
+    s_close: np.ndarray  # (R, 4) m, separation when the point first took load
+    vn_close: np.ndarray  # (R, 4) m/s, normal speed just before the point first took load
+
+
+class SolverParams(NamedTuple):
+    """The constants of one solve. h: substep (s); bias_rate (1/s), mass_scale
+    and impulse_scale: the contacts' softness; max_push_out: m/s; slop: m;
+    load_cap: the largest load stiffening factor (1: off); g_mag: |g| (m/s²);
+    bouncy: some row has restitution, so closing speeds are recorded; thesis:
+    the thesis's solver (rigid rows, no bias but the speculative one)."""
+
+    h: float
+    bias_rate: float
+    mass_scale: float
+    impulse_scale: float
+    max_push_out: float
+    slop: float
+    load_cap: float
+    g_mag: float
+    bouncy: bool
+    thesis: bool
+
+
+# ------------------------------------------------------------------ helpers
+@kernel
+def _max0(x):
+    """max(x, 0) that keeps NaN, as np.maximum does."""
+    if x > 0.0 or x != x:
+        return x
+    return 0.0
+
+
+@kernel
+def _mat_vec(m, r, v):
+    """m[r] @ v for a stack of 3x3 matrices m."""
+    return (m[r, 0, 0] * v[0] + m[r, 0, 1] * v[1] + m[r, 0, 2] * v[2],
+            m[r, 1, 0] * v[0] + m[r, 1, 1] * v[1] + m[r, 1, 2] * v[2],
+            m[r, 2, 0] * v[0] + m[r, 2, 1] * v[1] + m[r, 2, 2] * v[2])
+
+
+@kernel
+def _lever(arm, r, j):
+    return (arm[r, j, 0], arm[r, j, 1], arm[r, j, 2])
+
+
+@kernel
+def _v_rel(R, r, j, vel, angvel):
+    """(v_b + ω_b × r_b) - (v_a + ω_a × r_a) at point j of row r."""
+    a, b = R.a[r], R.b[r]
+    vb = add(load3(vel, b), cross(load3(angvel, b), _lever(R.rb, r, j)))
+    return sub(sub(vb, load3(vel, a)), cross(load3(angvel, a), _lever(R.ra, r, j)))
+
+
+@kernel
+def _apply(R, r, j, P, vel, angvel):
+    """Impulse P (N s) at point j of row r: -P on body a, +P on body b."""
+    if R.dyn_a[r]:
+        a = R.a[r]
+        va = sub(load3(vel, a), scale(R.inv_ma[r], P))
+        wa = sub(load3(angvel, a), _mat_vec(R.ia, r, cross(_lever(R.ra, r, j), P)))
+        vel[a, 0], vel[a, 1], vel[a, 2] = va
+        angvel[a, 0], angvel[a, 1], angvel[a, 2] = wa
+    if R.dyn_b[r]:
+        b = R.b[r]
+        vb = add(load3(vel, b), scale(R.inv_mb[r], P))
+        wb = add(load3(angvel, b), _mat_vec(R.ib, r, cross(_lever(R.rb, r, j), P)))
+        vel[b, 0], vel[b, 1], vel[b, 2] = vb
+        angvel[b, 0], angvel[b, 1], angvel[b, 2] = wb
+
+
+@kernel
+def _coulomb_scale(t1, t2, limit):
+    """Factor that brings the tangent impulse (t1, t2) into the disc |λ_t| ≤ limit."""
+    mag = math.sqrt(t1 * t1 + t2 * t2)
+    if mag > limit:
+        return limit / max(mag, 1e-30)
+    return 1.0
+
+
+@kernel
+def separation(R, r, j, pos, ori):
+    """Current separation (m) of point j of row r from its bodies'
+    displacement this step: s₀ + n·(Δ(x_b + r_b) - Δ(x_a + r_a))."""
+    a, b = R.a[r], R.b[r]
+    ra = rotate(load4(ori, a), _lever(R.la, r, j))
+    rb = rotate(load4(ori, b), _lever(R.lb, r, j))
+    d = add(sub(load3(pos, b), load3(R.xb0, r)), rb)
+    d = sub(d, _lever(R.rb, r, j))
+    d = sub(d, sub(load3(pos, a), load3(R.xa0, r)))
+    d = add(sub(d, ra), _lever(R.ra, r, j))
+    return R.sep0[r, j] + dot(d, load3(R.n, r))
+
+
+# ------------------------------------------------------------------ one row
+@kernel
+def _warm_start_row(R, r, vel, angvel):
+    n, t1, t2 = load3(R.n, r), load3(R.t1, r), load3(R.t2, r)
+    for j in range(4):
+        P = add(add(scale(R.lam_n[r, j], n), scale(R.lam_t1[r, j], t1)), scale(R.lam_t2[r, j], t2))
+        _apply(R, r, j, P, vel, angvel)
+
+
+@kernel
+def _solve_row(R, r, pos, ori, vel, angvel, p, use_bias, scratch):
+    """One Gauss-Seidel sweep over row r: its normal points (twice in a row
+    between two moving bodies: one pass in the fixed order 0..3 leaves the
+    earlier points' residual speed in a fixed pattern, a torque bias on both
+    bodies), then its friction points."""
+    h = p.h
+    n = load3(R.n, r)
+    sep, bias, gain, isc, vn_row, new = scratch[0], scratch[1], scratch[2], scratch[3], scratch[4], scratch[5]
+    isc[:] = 0.0
+    soft = use_bias and not p.thesis
+    load_stiff = soft and p.load_cap > 1.0 and p.g_mag != 0.0 and R.free[r]
+    for j in range(4):
+        s = separation(R, r, j, pos, ori)
+        sep[j] = s
+        if soft:
+            if s > 0.0:
+                bias[j], gain[j] = s / h, -R.mn[r, j]
+            else:
+                rate = p.bias_rate
+                if load_stiff:
+                    # A soft point rests where its spring m_n ω² holds its load F:
+                    # the rate is raised by the load factor F / (m_n g), F = λ_n / h,
+                    # clipped to [1, load_cap], so that a column of light bodies
+                    # does not sag at every contact.
+                    load = R.lam_n[r, j] / (h * p.g_mag * max(R.mn[r, j], 1e-30))
+                    rate = rate * min(max(load, 1.0), p.load_cap)
+                bias[j] = max(rate * min(s + p.slop, 0.0), -p.max_push_out)
+                gain[j] = -R.mn[r, j] * p.mass_scale
+                isc[j] = p.impulse_scale
+        else:
+            bias[j] = s / h if s > 0.0 else 0.0
+            gain[j] = -R.mn[r, j]
+    # Closing speeds at the row's start, before its own impulses (a face
+    # landing flat records one speed at all four points), for restitution.
+    record = False
+    if p.bouncy:
+        for j in range(4):
+            if R.max_lam_n[r, j] == 0.0 and R.valid[r, j]:
+                record = True
+    if record:
+        for j in range(4):
+            vn_row[j] = dot(_v_rel(R, r, j, vel, angvel), n)
+    passes = NORMAL_PASSES if (R.dyn_a[r] and R.dyn_b[r]) else 1
+    for _ in range(passes):
+        for j in range(4):
+            lam = R.lam_n[r, j]
+            vn = dot(_v_rel(R, r, j, vel, angvel), n)
+            d = gain[j] * (vn + bias[j])
+            if soft:
+                d = d - isc[j] * lam
+            value = _max0(lam + d) if R.valid[r, j] else 0.0
+            new[j] = value
+            if value != lam:
+                _apply(R, r, j, scale(value - lam, n), vel, angvel)
+        # Each point reads only its own impulse: the bookkeeping after the pass.
+        for j in range(4):
+            first = R.max_lam_n[r, j] == 0.0 and new[j] > 0.0
+            if first:
+                if record:
+                    R.vn_close[r, j] = vn_row[j]
+                R.s_close[r, j] = sep[j]
+            R.lam_n[r, j] = new[j]
+            if new[j] > R.max_lam_n[r, j]:
+                R.max_lam_n[r, j] = new[j]
+    t1, t2 = load3(R.t1, r), load3(R.t2, r)
+    for j in range(4):
+        limit = R.mu[r, j] * R.lam_n[r, j]
+        l1, l2 = R.lam_t1[r, j], R.lam_t2[r, j]
+        if limit == 0.0 and l1 == 0.0 and l2 == 0.0:
+            continue  # no normal and no friction impulse: the disc is a point
+        vrel = _v_rel(R, r, j, vel, angvel)
+        n1 = l1 - R.mt1[r, j] * dot(vrel, t1)
+        n2 = l2 - R.mt2[r, j] * dot(vrel, t2)
+        if R.valid[r, j]:
+            c = _coulomb_scale(n1, n2, limit)
+            n1, n2 = n1 * c, n2 * c
+        else:
+            n1, n2 = 0.0, 0.0
+        R.lam_t1[r, j], R.lam_t2[r, j] = n1, n2
+        _apply(R, r, j, add(scale(n1 - l1, t1), scale(n2 - l2, t2)), vel, angvel)
+
+
+@kernel
+def _bounce_row(R, r, vel, angvel, held, target):
+    """A row on jointed bodies: its impact was solved with the joints; each
+    bouncing point's impulse grows until its separating speed is the target."""
+    n = load3(R.n, r)
+    for j in range(4):
+        if not held[r, j]:
+            continue
+        vn = dot(_v_rel(R, r, j, vel, angvel), n)
+        lam = R.lam_n[r, j]
+        value = _max0(lam - R.mn[r, j] * (vn - target[r, j]))
+        R.lam_n[r, j] = value
+        _apply(R, r, j, scale(value - lam, n), vel, angvel)
+
+
+@kernel
+def _impact_row(R, r, vel, angvel, loaded, pending, first_target, threshold):
+    """One impact on row r if a loaded point approaches: targets
+    v_n' = e |v_n| (a point's first impact: from its closing speed before
+    it took load), λ ≥ 0 per point, then Coulomb friction bounded by μ times
+    the impact's normal impulse, passes over the row's points until its
+    impulses settle. ``pending`` (4,): the points whose first impact is
+    still to come. Returns whether the row had an impact."""
+    n, t1, t2 = load3(R.n, r), load3(R.t1, r), load3(R.t2, r)
+    vn = np.empty(4)
+    event = False
+    for j in range(4):
+        vn[j] = dot(_v_rel(R, r, j, vel, angvel), n)
+        if loaded[r, j] and vn[j] < -IMPACT_TOLERANCE:
+            event = True
+    if not event:
+        return False
+    e = R.e[r]
+    target = np.empty(4)
+    for j in range(4):
+        if pending[j]:
+            t = first_target[r, j]
+        elif vn[j] < -threshold and e > 0.0:
+            t = -e * vn[j]
+        else:
+            t = 0.0
+        target[j] = max(t, 0.0)
+    lam = np.zeros(4)
+    l1 = np.zeros(4)
+    l2 = np.zeros(4)
+    for _ in range(IMPACT_POINT_PASSES):
+        change = 0.0
+        for j in range(4):
+            if not loaded[r, j]:
+                continue
+            d = -R.mn[r, j] * (dot(_v_rel(R, r, j, vel, angvel), n) - target[j])
+            value = _max0(lam[j] + d)
+            d = value - lam[j]
+            change = max(change, abs(d))
+            lam[j] = value
+            _apply(R, r, j, scale(d, n), vel, angvel)
+        for j in range(4):
+            vrel = _v_rel(R, r, j, vel, angvel)
+            n1 = l1[j] - R.mt1[r, j] * dot(vrel, t1)
+            n2 = l2[j] - R.mt2[r, j] * dot(vrel, t2)
+            c = _coulomb_scale(n1, n2, R.mu[r, j] * lam[j])
+            n1, n2 = n1 * c, n2 * c
+            change = max(change, max(abs(n1 - l1[j]), abs(n2 - l2[j])))
+            _apply(R, r, j, add(scale(n1 - l1[j], t1), scale(n2 - l2[j], t2)), vel, angvel)
+            l1[j], l2[j] = n1, n2
+        largest = max(max(lam[0], lam[1]), max(lam[2], lam[3]))
+        if change <= IMPACT_PASS_TOLERANCE * largest:
+            break
+    pending[:] = False
+    return True
+
+
+# ------------------------------------------------------------------ batches
+@parallel_kernel
+def warm_start(R, order, world_start, vel, angvel):
+    """Apply every row's accumulated impulses (the last substep's) again."""
+    for w in prange(world_start.size - 1):
+        v, om = vel[w], angvel[w]
+        for k in range(world_start[w], world_start[w + 1]):
+            _warm_start_row(R, order[k], v, om)
+
+
+@parallel_kernel
+def solve(R, order, world_start, pos, ori, vel, angvel, p, use_bias, only_free):
+    """One sweep over every row (``only_free``: the rows of free bodies)."""
+    for w in prange(world_start.size - 1):
+        x, q, v, om = pos[w], ori[w], vel[w], angvel[w]
+        scratch = np.empty((6, 4))
+        for k in range(world_start[w], world_start[w + 1]):
+            r = order[k]
+            if only_free and not R.free[r]:
+                continue
+            _solve_row(R, r, x, q, v, om, p, use_bias, scratch)
+
+
+@parallel_kernel
+def separations(R, rows, pos, ori, out):
+    """Current separations (m) of the points of ``rows`` into out (len(rows), 4)."""
+    for k in prange(rows.size):
+        r = rows[k]
+        w = R.w[r]
+        for j in range(4):
+            out[k, j] = separation(R, r, j, pos[w], ori[w])
+
+
+@parallel_kernel
+def bounce_in_place(R, order, world_start, vel, angvel, held, target):
+    """Rows on jointed bodies: raise the bouncing points' separating speeds."""
+    for w in prange(world_start.size - 1):
+        v, om = vel[w], angvel[w]
+        for k in range(world_start[w], world_start[w + 1]):
+            _bounce_row(R, order[k], v, om, held, target)
+
+
+@kernel
+def _mark(R, r, marked):
+    if R.dyn_a[r]:
+        marked[R.a[r]] = True
+    if R.dyn_b[r]:
+        marked[R.b[r]] = True
+
+
+@kernel
+def _impacts_world(R, order, lo, hi, vel, angvel, seed, loaded, bounce, first_target, undo_n, undo_t1, undo_t2,
+                   lam_n_start, threshold, num_bodies):
+    """Free bodies of one world: the rows an impact can reach from the
+    ``seed`` rows, through loaded rows sharing a dynamic body (a row of
+    touching balls; static bodies do not connect); the step's impulses of
+    their newly touching points taken back (``undo_*``: what each substep
+    applied, λ included), then the impacts in sequence."""
+    on = np.zeros(hi - lo, dtype=np.bool_)
+    any_loaded = np.zeros(hi - lo, dtype=np.bool_)
+    any_on = False
+    for k in range(lo, hi):
+        r = order[k]
+        on[k - lo] = seed[r]
+        any_on = any_on or seed[r]
+        for j in range(4):
+            if loaded[r, j]:
+                any_loaded[k - lo] = True
+    if not any_on:
+        return
+    marked = np.zeros(num_bodies, dtype=np.bool_)
+    for _ in range(IMPACT_SWEEPS):
+        for k in range(lo, hi):
+            if on[k - lo]:
+                _mark(R, order[k], marked)
+        grew = False
+        for k in range(lo, hi):
+            r = order[k]
+            if any_loaded[k - lo] and not on[k - lo] and (
+                    (R.dyn_a[r] and marked[R.a[r]]) or (R.dyn_b[r] and marked[R.b[r]])):
+                on[k - lo] = True
+                grew = True
+        if not grew:
+            break
+    # Undo: the points that took load only in this step get their whole
+    # step's impulses back, so the impacts start from the velocities before
+    # the collision; impact impulses are not warm-started.
+    for k in range(lo, hi):
+        if not on[k - lo]:
+            continue
+        r = order[k]
+        n, t1, t2 = load3(R.n, r), load3(R.t1, r), load3(R.t2, r)
+        for j in range(4):
+            if loaded[r, j] and lam_n_start[r, j] == 0.0:
+                P = add(add(scale(-undo_n[r, j], n), scale(-undo_t1[r, j], t1)), scale(-undo_t2[r, j], t2))
+                _apply(R, r, j, P, vel, angvel)
+                R.lam_n[r, j] = 0.0
+                R.lam_t1[r, j] = 0.0
+                R.lam_t2[r, j] = 0.0
+    pending = np.zeros((hi - lo, 4), dtype=np.bool_)  # first impacts not yet given
+    for k in range(lo, hi):
+        if on[k - lo]:
+            r = order[k]
+            for j in range(4):
+                pending[k - lo, j] = bounce[r, j]
+    for _ in range(IMPACT_SWEEPS):
+        hit = False
+        for k in range(lo, hi):
+            if on[k - lo] and _impact_row(R, order[k], vel, angvel, loaded, pending[k - lo], first_target,
+                                          threshold):
+                hit = True
+        if not hit:
+            break
+
+
+@parallel_kernel
+def impacts(R, order, world_start, vel, angvel, seed, loaded, bounce, first_target, undo_n, undo_t1, undo_t2,
+            lam_n_start, threshold):
+    """The sequential impacts of every world's free bodies (see ``_impacts_world``)."""
+    N = vel.shape[1]
+    for w in prange(world_start.size - 1):
+        _impacts_world(R, order, world_start[w], world_start[w + 1], vel[w], angvel[w], seed, loaded, bounce,
+                       first_target, undo_n, undo_t1, undo_t2, lam_n_start, threshold, N)
