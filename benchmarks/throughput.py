@@ -2,7 +2,7 @@
 
     python -m benchmarks.throughput [--worlds 1 16 256 1024 4096] [--scenes ...]
         [--steps N] [--repeats R] [--target-seconds S] [--quick] [--json PATH]
-        [--compare-mujoco] [--mujoco-worlds N] [--processes P ...]
+        [--compare-mujoco] [--mujoco-worlds N] [--compile] [--processes P ...]
 
 For each scene and world count W: world-steps per second, simulated seconds
 per wall-clock second (world-steps/s x dt) and bytes per world (the state plus
@@ -40,8 +40,12 @@ SETTLE_WORLDS = 64
 SETTLE_SECONDS = 1.5
 MUJOCO_WORLDS = 1024
 QUICK_MUJOCO_WORLDS = 32
-MUJOCO_EPISODE = 100
-RAGDOLL_ENV = "Ragdoll/Balance-v0"
+MUJOCO_SETTLE_STEPS = 1500  # 4.5 s at the humanoid's 3 ms: fallen and lying under random controls
+MUJOCO_ROLLOUT_STEPS = 200
+PYBULLET_SETTLE_STEPS = 1200  # 5 s at 240 Hz
+RAGDOLL_ENVS = ("Ragdoll/Balance-v0", "Ragdoll/InvertedPendulum-v0")
+#: Each of our env ids and the Gymnasium MuJoCo env it is compared with.
+ENV_PEERS = {"Ragdoll/Balance-v0": "Humanoid-v5", "Ragdoll/InvertedPendulum-v0": "InvertedPendulum-v5"}
 RAGDOLL_VECTOR_ENVS = 64
 MUJOCO_VECTOR_ENVS = 8
 HUMANOID_SCENES = ("ragdoll_air", "ragdoll_ground")
@@ -202,47 +206,133 @@ def mujoco_controls(mj_model, shape, seed=0):
     return np.random.default_rng(seed).uniform(lo, hi, shape + (mj_model.nu,))
 
 
-def mujoco_loop(mujoco, m, args):
-    d = mujoco.MjData(m)
-    u = mujoco_controls(m, (MUJOCO_EPISODE,))
-
-    def make_run(n):
-        mujoco.mj_resetData(m, d)
-
-        def run():
-            for i in range(n):
-                k = i % MUJOCO_EPISODE
-                if k == 0:
-                    mujoco.mj_resetData(m, d)
-                d.ctrl[:] = u[k]
-                mujoco.mj_step(m, d)
-        return run
-
-    steps, seconds = measure(make_run, args.repeats, args.steps, args.target_seconds)
-    return row("mujoco", "loop", "humanoid", 1, m.opt.timestep, steps, seconds, args.repeats,
-               bytes_per_world=float(d.nbuffer + d.narena))
+def mujoco_model(mujoco, integrator):
+    """Gymnasium's humanoid.xml as shipped ("rk4": RK4, dt 3 ms) or with
+    ``integrator="implicitfast"``."""
+    m = mujoco.MjModel.from_xml_path(humanoid_xml())
+    if integrator == "implicitfast":
+        m.opt.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
+    return m
 
 
-def mujoco_rollout(mujoco, m, worlds, nthread, args):
+def mujoco_settled(mujoco, m, worlds):
+    """Full-physics states of ``worlds`` humanoids after ``MUJOCO_SETTLE_STEPS``
+    steps of random controls from the standing start (each world its own
+    controls): fallen and lying on the ground, as the ragdoll is timed."""
     from mujoco import rollout
 
     spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
     d = mujoco.MjData(m)
     x0 = np.empty(mujoco.mj_stateSize(m, spec))
     mujoco.mj_getState(m, d, x0, spec)
-    initial = np.tile(x0, (worlds, 1))
-    nstep = args.steps or MUJOCO_EPISODE
+    n = min(worlds, SETTLE_WORLDS)
+    u = mujoco_controls(m, (n, MUJOCO_SETTLE_STEPS), seed=1)
+    states, _ = rollout.rollout(m, d, np.tile(x0, (n, 1)), u)
+    return states[np.arange(worlds) % n, -1]
+
+
+def _contacts_per_world(mujoco, m, state):
+    spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
+    d = mujoco.MjData(m)
+    counts = []
+    for x in state[:16]:
+        mujoco.mj_setState(m, d, x, spec)
+        mujoco.mj_forward(m, d)
+        counts.append(d.ncon)
+    return float(np.mean(counts))
+
+
+def mujoco_loop(mujoco, m, integrator, start, args):
+    """One MjData stepped by ``mj_step`` from a lying start."""
+    spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
+    d = mujoco.MjData(m)
+    u = mujoco_controls(m, (CONTROL_BANK,))
+
+    def make_run(n):
+        mujoco.mj_setState(m, d, start[0], spec)
+
+        def run():
+            for i in range(n):
+                d.ctrl[:] = u[i % CONTROL_BANK]
+                mujoco.mj_step(m, d)
+        return run
+
+    steps, seconds = measure(make_run, args.repeats, args.steps, args.target_seconds)
+    r = row("mujoco", f"loop-{integrator}", "humanoid_ground", 1, m.opt.timestep, steps, seconds, args.repeats,
+            bytes_per_world=float(d.nbuffer + d.narena))
+    r["contacts_per_world"] = _contacts_per_world(mujoco, m, start)
+    return r
+
+
+def mujoco_rollout(mujoco, m, integrator, start, nthread, args):
+    """``mujoco.rollout`` of W lying humanoids on ``nthread`` threads."""
+    from mujoco import rollout
+
+    worlds = start.shape[0]
+    nstep = args.steps or MUJOCO_ROLLOUT_STEPS
     u = mujoco_controls(m, (worlds, nstep))
     datas = [mujoco.MjData(m) for _ in range(nthread)]
+    initial = np.ascontiguousarray(start)
     with rollout.Rollout(nthread=nthread) as pool:
         def make_run(n):
-            out = np.empty((worlds, n, x0.size))
+            out = np.empty((worlds, n, start.shape[1]))
             control = np.ascontiguousarray(u[:, :n])
             return lambda: pool.rollout(m, datas, initial, control, state=out)
 
         steps, seconds = measure(make_run, args.repeats, nstep)
-    return row("mujoco", f"rollout-{nthread}thread", "humanoid", worlds, m.opt.timestep, steps, seconds,
-               args.repeats)
+    r = row("mujoco", f"rollout-{integrator}-{nthread}thread", "humanoid_ground", worlds, m.opt.timestep, steps,
+            seconds, args.repeats)
+    r["contacts_per_world"] = _contacts_per_world(mujoco, m, start)
+    return r
+
+
+def pybullet_rows(args, notes):
+    """PyBullet's MJCF humanoid (pybullet_data's mjcf/humanoid.xml) on its
+    ground plane at 240 Hz, torque-controlled, lying after ``PYBULLET_SETTLE_STEPS``
+    steps of random torques: one world (PyBullet has no batching)."""
+    try:
+        import pybullet as pb
+        import pybullet_data
+    except ImportError as exc:
+        notes.append(f"PyBullet row skipped: {exc} (pip install pybullet)")
+        return []
+    client = pb.connect(pb.DIRECT)
+    try:
+        pb.setAdditionalSearchPath(pybullet_data.getDataPath(), physicsClientId=client)
+        pb.setGravity(0, 0, -9.81, physicsClientId=client)
+        pb.setTimeStep(1.0 / 240.0, physicsClientId=client)
+        pb.loadURDF("plane.urdf", physicsClientId=client)
+        body = pb.loadMJCF("mjcf/humanoid.xml", physicsClientId=client)[-1]
+        joints = [j for j in range(pb.getNumJoints(body, physicsClientId=client))
+                  if pb.getJointInfo(body, j, physicsClientId=client)[2] == pb.JOINT_REVOLUTE]
+        # Torque control: the default velocity motors off.
+        pb.setJointMotorControlArray(body, joints, pb.VELOCITY_CONTROL, forces=[0.0] * len(joints),
+                                     physicsClientId=client)
+        rng = np.random.default_rng(0)
+        torques = rng.uniform(-40.0, 40.0, (CONTROL_BANK, len(joints)))
+
+        def control(i):
+            pb.setJointMotorControlArray(body, joints, pb.TORQUE_CONTROL, forces=torques[i % CONTROL_BANK],
+                                         physicsClientId=client)
+            pb.stepSimulation(physicsClientId=client)
+
+        for i in range(PYBULLET_SETTLE_STEPS):
+            control(i)
+        contacts = len(pb.getContactPoints(bodyA=body, physicsClientId=client))
+
+        def make_run(n):
+            def run():
+                for i in range(n):
+                    control(i)
+            return run
+
+        steps, seconds = measure(make_run, args.repeats, args.steps, args.target_seconds)
+    finally:
+        pb.disconnect(client)
+    r = row("pybullet", "loop", "humanoid_ground", 1, 1.0 / 240.0, steps, seconds, args.repeats)
+    r["contacts_per_world"] = float(contacts)
+    print("measured pybullet loop", flush=True)
+    return [r]
 
 
 def bench_env(env_id, vector_envs, vector_kwargs, args, engine):
@@ -291,17 +381,56 @@ def ragdoll_env_rows(args, notes):
     try:
         import ragdoll_env  # noqa: F401
     except Exception as exc:
-        notes.append(f"{RAGDOLL_ENV}: skipped, ragdoll_env does not import: {exc}")
+        notes.append(f"ragdoll env rows skipped, ragdoll_env does not import: {exc}")
         return []
-    if RAGDOLL_ENV not in gymnasium.envs.registry:
-        notes.append(f"{RAGDOLL_ENV}: skipped, not registered by ragdoll_env yet")
-        return []
-    try:
-        return bench_env(RAGDOLL_ENV, RAGDOLL_VECTOR_ENVS, {"vectorization_mode": "vector_entry_point"},
-                         args, "ragdoll")
-    except Exception as exc:
-        notes.append(f"{RAGDOLL_ENV}: skipped, failed: {type(exc).__name__}: {exc}")
-        return []
+    rows = []
+    for env_id in RAGDOLL_ENVS:
+        try:
+            rows += bench_env(env_id, RAGDOLL_VECTOR_ENVS, {"vectorization_mode": "vector_entry_point"},
+                              args, "ragdoll")
+            print(f"measured {env_id} env and vector env", flush=True)
+        except Exception as exc:
+            notes.append(f"{env_id}: skipped, failed: {type(exc).__name__}: {exc}")
+    return rows
+
+
+COMPILE_PROBE = """
+import time
+t0 = time.perf_counter()
+import engine
+from engine.humanoid import add_humanoid
+b = engine.SceneBuilder()
+b.add_ground()
+add_humanoid(b)
+model = b.build()
+state = model.initial_state(2)
+engine.step(model, state)
+print(time.perf_counter() - t0)
+"""
+
+
+def compile_rows(notes):
+    """Seconds from a fresh interpreter to the first step of the humanoid on
+    the ground: with an empty kernel cache (cold compile) and again with the
+    cache it filled (warm start)."""
+    import subprocess
+    import sys
+    import tempfile
+
+    rows = []
+    with tempfile.TemporaryDirectory() as cache:
+        env = {**os.environ, "NUMBA_CACHE_DIR": cache}
+        for mode in ("cold-compile", "warm-start"):
+            out = subprocess.run([sys.executable, "-c", COMPILE_PROBE], env=env, capture_output=True, text=True)
+            if out.returncode != 0:
+                notes.append(f"{mode}: the probe failed: {out.stderr.strip().splitlines()[-1:]}")
+                return rows
+            seconds = float(out.stdout.strip().splitlines()[-1])
+            rows.append({"engine": "ragdoll", "mode": mode, "scene": "ragdoll_ground", "worlds": 2, "dt_s": None,
+                         "world_steps_per_s": None, "sim_s_per_s": None, "bytes_per_world": None,
+                         "state_bytes_per_world": None, "steps": 1, "repeats": 1, "seconds": seconds})
+            print(f"measured {mode}: {seconds:.1f} s", flush=True)
+    return rows
 
 
 def mujoco_rows(args, notes):
@@ -311,33 +440,55 @@ def mujoco_rows(args, notes):
     except ImportError as exc:
         notes.append(f"MuJoCo comparison skipped: {exc} (pip install 'ragdoll[bench]')")
         return []
-    m = mujoco.MjModel.from_xml_path(humanoid_xml())
-    rows = [mujoco_loop(mujoco, m, args)]
-    print("measured mujoco loop", flush=True)
-    for nthread in (1, 2):
-        rows.append(mujoco_rollout(mujoco, m, args.mujoco_worlds, nthread, args))
-        print(f"measured mujoco rollout-{nthread}thread", flush=True)
+    rows = []
+    for integrator in ("rk4", "implicitfast"):
+        m = mujoco_model(mujoco, integrator)
+        start = mujoco_settled(mujoco, m, args.mujoco_worlds)
+        rows.append(mujoco_loop(mujoco, m, integrator, start, args))
+        print(f"measured mujoco loop {integrator}", flush=True)
+        for nthread in (1, 2):
+            rows.append(mujoco_rollout(mujoco, m, integrator, start, nthread, args))
+            print(f"measured mujoco rollout {integrator} {nthread} thread(s)", flush=True)
     rows += bench_env("Humanoid-v5", MUJOCO_VECTOR_ENVS, {}, args, "mujoco")
     print("measured Humanoid-v5 env and vector env", flush=True)
-    return rows + ragdoll_env_rows(args, notes)
+    rows += bench_env("InvertedPendulum-v5", MUJOCO_VECTOR_ENVS, {}, args, "mujoco")
+    print("measured InvertedPendulum-v5 env and vector env", flush=True)
+    return rows + pybullet_rows(args, notes) + ragdoll_env_rows(args, notes)
 
 
 # --------------------------------------------------------------------- main
+def _find(rows, engine, mode, scene=None):
+    return next((r for r in rows if r["engine"] == engine and r["mode"] == mode
+                 and (scene is None or r["scene"] == scene)), None)
+
+
 def ratio_lines(rows):
-    reference = next((r for r in rows if r["engine"] == "mujoco" and r["mode"] == "rollout-2thread"), None)
+    """The ratios of simulated seconds per second that compare like with
+    like: lying humanoids batched and alone, each env with its MuJoCo peer."""
     lines = []
-    if reference:
-        for r in rows:
-            if r["engine"] == "ragdoll" and r["mode"].startswith("batched") and r["scene"] in HUMANOID_SCENES:
-                lines.append(f"ragdoll {r['mode']} {r['scene']} W={r['worlds']} / mujoco humanoid rollout-2thread "
-                             f"W={reference['worlds']}: {r['sim_s_per_s'] / reference['sim_s_per_s']:.3g}x "
-                             f"simulated s per s")
-    for mode in ("env", "vector-env"):
-        ours = next((r for r in rows if r["engine"] == "ragdoll" and r["mode"] == mode), None)
-        theirs = next((r for r in rows if r["engine"] == "mujoco" and r["mode"] == mode), None)
+
+    def ratio(ours, theirs, label):
         if ours and theirs and ours["sim_s_per_s"] and theirs["sim_s_per_s"]:
-            lines.append(f"{ours['scene']} {mode} (W={ours['worlds']}) / {theirs['scene']} {mode} "
-                         f"(W={theirs['worlds']}): {ours['sim_s_per_s'] / theirs['sim_s_per_s']:.3g}x simulated s per s")
+            lines.append(f"{label}: {ours['sim_s_per_s'] / theirs['sim_s_per_s']:.3g}x simulated s per s")
+
+    ground = [r for r in rows if r["engine"] == "ragdoll" and r["scene"] == "ragdoll_ground"
+              and r["mode"].startswith("batched")]
+    for ref_mode in ("rollout-implicitfast-2thread", "rollout-rk4-2thread"):
+        ref = _find(rows, "mujoco", ref_mode)
+        for r in ground:
+            if r["worlds"] >= 16 and ref:
+                ratio(r, ref, f"ragdoll_ground {r['mode']} W={r['worlds']} / mujoco humanoid_ground {ref_mode} "
+                              f"W={ref['worlds']}")
+    one = next((r for r in ground if r["worlds"] == 1 and r["mode"] == "batched"), None)
+    for ref_mode in ("loop-implicitfast", "loop-rk4"):
+        ratio(one, _find(rows, "mujoco", ref_mode), f"ragdoll_ground W=1 / mujoco humanoid_ground {ref_mode}")
+    ratio(one, _find(rows, "pybullet", "loop"), "ragdoll_ground W=1 / pybullet humanoid_ground loop")
+    for ours_id, theirs_id in ENV_PEERS.items():
+        for mode in ("env", "vector-env"):
+            ours, theirs = _find(rows, "ragdoll", mode, ours_id), _find(rows, "mujoco", mode, theirs_id)
+            if ours and theirs:
+                ratio(ours, theirs, f"{ours_id} {mode} (W={ours['worlds']}) / {theirs_id} {mode} "
+                                    f"(W={theirs['worlds']})")
     return lines
 
 
@@ -345,6 +496,7 @@ COLUMNS = [
     ("engine", "engine"), ("mode", "mode"), ("scene", "scene"), ("W", "worlds"), ("steps", "steps"),
     ("dt ms", lambda r: None if r["dt_s"] is None else 1e3 * r["dt_s"]),
     ("world-steps/s", "world_steps_per_s"), ("sim s/s", "sim_s_per_s"),
+    ("contacts", lambda r: r.get("contacts_per_world")),
     ("state B/world", "state_bytes_per_world"),
     ("B/world (state + step peak)", "bytes_per_world"),
 ]
@@ -361,7 +513,11 @@ def parse_args(argv):
                    help=f"simulated seconds of random torques before timing and measuring memory (default {SETTLE_SECONDS})")
     p.add_argument("--quick", action="store_true", help="small W list, few steps: a smoke test")
     p.add_argument("--json", metavar="PATH", help="write the rows as a JSON list")
-    p.add_argument("--compare-mujoco", action="store_true", help="measure MuJoCo's humanoid and Humanoid-v5 too")
+    p.add_argument("--compare-mujoco", action="store_true",
+                   help="measure MuJoCo's humanoid (lying, RK4 and implicitfast, mj_step and rollout), "
+                        "Humanoid-v5, InvertedPendulum-v5, PyBullet's humanoid and our envs too")
+    p.add_argument("--compile", action="store_true",
+                   help="measure the cold compile (empty kernel cache) and the warm start in fresh interpreters")
     p.add_argument("--mujoco-worlds", type=positive_int, help=f"worlds of the MuJoCo rollouts (default {MUJOCO_WORLDS})")
     p.add_argument("--settings", type=settings_json, default={}, metavar="JSON",
                    help="engine settings over each ragdoll scene's own, e.g. '{\"articulated_contacts\": false}'")
@@ -389,9 +545,14 @@ def main(argv=None):
     rows = ragdoll_rows(args, notes)
     if args.compare_mujoco:
         rows += mujoco_rows(args, notes)
+    if args.compile:
+        rows += compile_rows(notes)
     print()
     print_table(rows, COLUMNS, title="Throughput (median of repeats; B/world = state.nbytes()/W "
                                      "+ tracemalloc peak of one step / W)")
+    for r in rows:
+        if "seconds" in r:
+            print(f"{r['mode']}: {r['seconds']:.2f} s from a fresh interpreter to the first step of {r['scene']}")
     print(machine_note())
     for line in ratio_lines(rows):
         print(line)

@@ -6,16 +6,21 @@ import pytest
 from benchmarks.throughput import main
 
 KEYS = {"engine", "mode", "scene", "worlds", "dt_s", "world_steps_per_s", "sim_s_per_s", "bytes_per_world"}
+MODES = {"batched", "batched-2proc", "loop", "loop-rk4", "loop-implicitfast", "rollout-rk4-1thread",
+         "rollout-rk4-2thread", "rollout-implicitfast-1thread", "rollout-implicitfast-2thread", "env", "vector-env",
+         "cold-compile", "warm-start"}
 
 
 def check_rows(rows):
     assert isinstance(rows, list) and rows
     for r in rows:
         assert KEYS <= r.keys()
-        assert r["engine"] in ("ragdoll", "mujoco")
-        assert r["mode"] in ("batched", "batched-2proc", "loop", "rollout-1thread", "rollout-2thread", "env",
-                             "vector-env")
+        assert r["engine"] in ("ragdoll", "mujoco", "pybullet")
+        assert r["mode"] in MODES
         assert isinstance(r["worlds"], int) and r["worlds"] >= 1
+        if r["mode"] in ("cold-compile", "warm-start"):
+            assert math.isfinite(r["seconds"]) and r["seconds"] > 0
+            continue
         assert math.isfinite(r["world_steps_per_s"]) and r["world_steps_per_s"] > 0
         for key in ("dt_s", "sim_s_per_s", "bytes_per_world"):
             assert r[key] is None or (math.isfinite(r[key]) and r[key] > 0)
@@ -42,8 +47,14 @@ def test_quick_mujoco_comparison(tmp_path):
     rows = json.loads(path.read_text())
     check_rows(rows)
     modes = {(r["engine"], r["mode"]) for r in rows}
-    assert {("mujoco", "loop"), ("mujoco", "rollout-1thread"), ("mujoco", "rollout-2thread"),
-            ("mujoco", "env"), ("mujoco", "vector-env"), ("ragdoll", "batched")} <= modes
+    assert {("mujoco", f"{kind}-{integrator}{threads}") for integrator in ("rk4", "implicitfast")
+            for kind, threads in (("loop", ""), ("rollout", "-1thread"), ("rollout", "-2thread"))} <= modes
+    assert {("mujoco", "env"), ("mujoco", "vector-env"), ("ragdoll", "batched")} <= modes
+    assert {r["scene"] for r in rows if r["mode"] == "env"} >= {"Humanoid-v5", "InvertedPendulum-v5"}
+    # Timed lying on the ground, as the ragdoll is: a fallen humanoid touches it at several points.
+    for r in rows:
+        if r["engine"] == "mujoco" and r["mode"].startswith(("loop", "rollout")):
+            assert r["scene"] == "humanoid_ground" and r["contacts_per_world"] >= 2
 
 
 def test_quick_run_in_two_processes(tmp_path):
