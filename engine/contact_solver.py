@@ -54,18 +54,11 @@ import numpy as np
 
 from .coloring import color_rows
 from .core import contacts as kernels
-from .math3d import cross, dot, mat_vec, normalize, quat_rotate_inv, world_inv_inertia
+from .math3d import dot
 from .soft import make_soft
 
 STICK_SPEED = 0.01  # m/s: below it a contact point uses static friction
 CONTACT_HERTZ_CAP = 0.25  # contact stiffness at most this fraction of the substep rate (Box2D v3)
-
-
-def _tangents(n):
-    """Two unit tangents (K, 3) perpendicular to the unit normals n."""
-    helper = np.where((np.abs(n[:, 0]) < 0.57)[:, None], np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]))
-    t1 = normalize(cross(n, helper))
-    return t1, cross(n, t1)
 
 
 def _top_down_priority(point, valid, gravity):
@@ -92,49 +85,34 @@ class ContactRows:
         # on that side, and _scatter writes back only dynamic bodies.
         self.a_moves = bool(self.dyn_a.any())
         self.inv_ma, self.inv_mb = model.inv_mass[a], model.inv_mass[b]
-        self.n = normal
-        self.t1, self.t2 = _tangents(normal)
+        R = len(w)
         self.valid = valid
         self.h = h
-        xa, xb = state.position[w, a], state.position[w, b]
-        qa, qb = state.orientation[w, a], state.orientation[w, b]
-        self.xa0, self.xb0 = xa, xb
-        ra = point - xa[:, None]
-        rb = point - xb[:, None]
-        self.ra, self.rb = ra, rb
-        self.la = quat_rotate_inv(qa[:, None], ra)  # body-local lever arms
-        self.lb = quat_rotate_inv(qb[:, None], rb)
-        self.sep0 = np.where(valid, sep, 0.0)
-        # World inverse inertias (step start), as in Box2D's prepare stage.
-        self.ia = world_inv_inertia(qa, model.inv_inertia[a])[:, None]
-        self.ib = world_inv_inertia(qb, model.inv_inertia[b])[:, None]
-        base = (self.inv_ma + self.inv_mb)[:, None]
-        nn = normal[:, None]
-
-        def eff_mass(d):
-            ran, rbn = cross(ra, d), cross(rb, d)
-            k = base + dot(ran, mat_vec(self.ia, ran)) + dot(rbn, mat_vec(self.ib, rbn))
-            return np.where(valid, 1.0 / np.maximum(k, 1e-30), 0.0)
-
-        self.mn = eff_mass(nn)
-        self.mt1 = eff_mass(self.t1[:, None])
-        self.mt2 = eff_mass(self.t2[:, None])
-        va, vb = state.velocity[w, a], state.velocity[w, b]
-        wa, wb = state.angular_velocity[w, a], state.angular_velocity[w, b]
-        vrel = vb[:, None] + cross(wb[:, None], rb) - va[:, None] - cross(wa[:, None], ra)
-        self.vn0 = dot(vrel, nn)
-        vt = vrel - self.vn0[..., None] * nn
-        sticking = dot(vt, vt) < STICK_SPEED ** 2
-        self.mu = np.where(sticking, contacts.mu_static[p][:, None], contacts.mu_kinetic[p][:, None])
-        self.e = contacts.restitution[p]
-        self.bouncy = bool((self.e > 0).any())
         held = contacts.jointed & model.dynamic
         self.jointed = held[a] | held[b]  # rows touching a body held by a joint
+        self.e = contacts.restitution[p]
+        empty3, empty4 = (lambda: np.empty((R, 3))), (lambda: np.empty((R, 4)))
+        # The step-constant fields are filled by the prepare kernel below.
+        self.arrays = kernels.ContactRowArrays(
+            w=w, a=a, b=b, dyn_a=self.dyn_a, dyn_b=self.dyn_b, free=~self.jointed,
+            inv_ma=self.inv_ma, inv_mb=self.inv_mb, n=normal, t1=empty3(), t2=empty3(), valid=valid,
+            xa0=empty3(), xb0=empty3(), ra=np.empty((R, 4, 3)), rb=np.empty((R, 4, 3)),
+            la=np.empty((R, 4, 3)), lb=np.empty((R, 4, 3)), sep0=np.array(sep, dtype=float),
+            ia=np.empty((R, 3, 3)), ib=np.empty((R, 3, 3)), mn=empty4(), mt1=empty4(), mt2=empty4(), mu=empty4(),
+            e=self.e, lam_n=lam_n, lam_t1=empty4(), lam_t2=empty4(), max_lam_n=np.zeros((R, 4)),
+            s_close=np.zeros((R, 4)), vn_close=empty4())
+        self.vn0 = empty4()
+        kernels.prepare(self.arrays, p, point, lam_t, state.position, state.orientation, state.velocity,
+                        state.angular_velocity, model.inv_inertia, contacts.mu_static, contacts.mu_kinetic,
+                        STICK_SPEED, self.vn0)
+        A = self.arrays
+        self.n, self.t1, self.t2 = A.n, A.t1, A.t2
+        self.xa0, self.xb0, self.ra, self.rb, self.la, self.lb = A.xa0, A.xb0, A.ra, A.rb, A.la, A.lb
+        self.sep0, self.ia, self.ib = A.sep0, A.ia, A.ib
+        self.mn, self.mt1, self.mt2, self.mu = A.mn, A.mt1, A.mt2, A.mu
+        self.bouncy = bool((self.e > 0).any())
         self.threshold = s.restitution_threshold
-        self.lam_n = lam_n
-        self.lam_t1 = dot(lam_t, self.t1[:, None])
-        self.lam_t2 = dot(lam_t, self.t2[:, None])
-        self.max_lam_n = np.zeros(lam_n.shape)
+        self.lam_n, self.lam_t1, self.lam_t2, self.max_lam_n = A.lam_n, A.lam_t1, A.lam_t2, A.max_lam_n
         self.lam_n_start = lam_n.copy()
         # Σ of earlier substeps' λ (each substep applies its λ once): the
         # impulses of the step, taken back by an impact (restitution).
@@ -142,8 +120,7 @@ class ContactRows:
         self.lam_t1_step = np.zeros(lam_n.shape)
         self.lam_t2_step = np.zeros(lam_n.shape)
         self.warm_starts = 0
-        self.vn_close = self.vn0.copy()
-        self.s_close = np.zeros(self.vn0.shape)
+        self.vn_close, self.s_close = A.vn_close, A.s_close
         # Relative normal acceleration from uniform gravity (negative: closing).
         g = model.gravity if "gravity" in model.effects else np.zeros(3)
         self.gravity_n = dot(normal, g) * (self.dyn_b.astype(float) - self.dyn_a.astype(float))
@@ -163,14 +140,6 @@ class ContactRows:
         self.colors = color_rows(self.ka, self.kb, self.dyn_a, self.dyn_b, state.num_worlds * N, priority, first_fit)
         self.num_worlds = state.num_worlds
         self.articulated = None  # ArticulatedContacts of this step's rows on articulations, if attached
-        self.arrays = kernels.ContactRowArrays(
-            w=w, a=a, b=b, dyn_a=self.dyn_a, dyn_b=self.dyn_b, free=~self.jointed,
-            inv_ma=self.inv_ma, inv_mb=self.inv_mb, n=self.n, t1=self.t1, t2=self.t2, valid=self.valid,
-            xa0=self.xa0, xb0=self.xb0, ra=self.ra, rb=self.rb, la=self.la, lb=self.lb, sep0=self.sep0,
-            ia=np.ascontiguousarray(self.ia[:, 0]), ib=np.ascontiguousarray(self.ib[:, 0]),
-            mn=self.mn, mt1=self.mt1, mt2=self.mt2, mu=self.mu, e=self.e,
-            lam_n=self.lam_n, lam_t1=self.lam_t1, lam_t2=self.lam_t2, max_lam_n=self.max_lam_n,
-            s_close=self.s_close, vn_close=self.vn_close)
         self._order()
 
     # ------------------------------------------------------------------------

@@ -33,7 +33,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .jit import kernel, parallel_kernel, prange
-from .vec import add, cross, dot, load3, load4, rotate, scale, sub
+from .vec import add, cross, dot, load3, load4, rotate, rotate_inv, scale, sub
 
 IMPACT_SWEEPS = 16  # at most this many sweeps of impacts (a row of n balls needs about n/2)
 IMPACT_POINT_PASSES = 32  # at most this many passes over the points of a row in one impact
@@ -334,45 +334,64 @@ def _impact_row(R, r, vel, angvel, loaded, pending, first_target, threshold):
 
 
 # ------------------------------------------------------------------ batches
+# Each prange body is one call of a kernel of one world (or row): numba's
+# parallel lowering is kept to the loop itself.
 @parallel_kernel
 def warm_start(R, order, world_start, vel, angvel):
     """Apply every row's accumulated impulses (the last substep's) again."""
     for w in prange(world_start.size - 1):
-        v, om = vel[w], angvel[w]
-        for k in range(world_start[w], world_start[w + 1]):
-            _warm_start_row(R, order[k], v, om)
+        _warm_start_world(R, order, world_start[w], world_start[w + 1], vel[w], angvel[w])
+
+
+@kernel
+def _warm_start_world(R, order, lo, hi, vel, angvel):
+    for k in range(lo, hi):
+        _warm_start_row(R, order[k], vel, angvel)
 
 
 @parallel_kernel
 def solve(R, order, world_start, pos, ori, vel, angvel, p, use_bias, only_free):
     """One sweep over every row (``only_free``: the rows of free bodies)."""
     for w in prange(world_start.size - 1):
-        x, q, v, om = pos[w], ori[w], vel[w], angvel[w]
-        scratch = np.empty((6, 4))
-        for k in range(world_start[w], world_start[w + 1]):
-            r = order[k]
-            if only_free and not R.free[r]:
-                continue
-            _solve_row(R, r, x, q, v, om, p, use_bias, scratch)
+        _solve_world(R, order, world_start[w], world_start[w + 1], pos[w], ori[w], vel[w], angvel[w], p, use_bias,
+                     only_free)
+
+
+@kernel
+def _solve_world(R, order, lo, hi, pos, ori, vel, angvel, p, use_bias, only_free):
+    scratch = np.empty((6, 4))
+    for k in range(lo, hi):
+        r = order[k]
+        if only_free and not R.free[r]:
+            continue
+        _solve_row(R, r, pos, ori, vel, angvel, p, use_bias, scratch)
 
 
 @parallel_kernel
 def separations(R, rows, pos, ori, out):
     """Current separations (m) of the points of ``rows`` into out (len(rows), 4)."""
     for k in prange(rows.size):
-        r = rows[k]
-        w = R.w[r]
-        for j in range(4):
-            out[k, j] = separation(R, r, j, pos[w], ori[w])
+        _separations_row(R, rows[k], pos, ori, out, k)
+
+
+@kernel
+def _separations_row(R, r, pos, ori, out, k):
+    w = R.w[r]
+    for j in range(4):
+        out[k, j] = separation(R, r, j, pos[w], ori[w])
 
 
 @parallel_kernel
 def bounce_in_place(R, order, world_start, vel, angvel, held, target):
     """Rows on jointed bodies: raise the bouncing points' separating speeds."""
     for w in prange(world_start.size - 1):
-        v, om = vel[w], angvel[w]
-        for k in range(world_start[w], world_start[w + 1]):
-            _bounce_row(R, order[k], v, om, held, target)
+        _bounce_world(R, order, world_start[w], world_start[w + 1], vel[w], angvel[w], held, target)
+
+
+@kernel
+def _bounce_world(R, order, lo, hi, vel, angvel, held, target):
+    for k in range(lo, hi):
+        _bounce_row(R, order[k], vel, angvel, held, target)
 
 
 @kernel
@@ -456,3 +475,102 @@ def impacts(R, order, world_start, vel, angvel, seed, loaded, bounce, first_targ
     for w in prange(world_start.size - 1):
         _impacts_world(R, order, world_start[w], world_start[w + 1], vel[w], angvel[w], seed, loaded, bounce,
                        first_target, undo_n, undo_t1, undo_t2, lam_n_start, threshold, N)
+
+
+# ------------------------------------------------------------------ prepare
+@kernel
+def tangents(n):
+    """Two unit tangents perpendicular to the unit normal n: t1 = n × e
+    normalised, with e the x axis unless n is near it (then y), and t2 = n × t1."""
+    e = (1.0, 0.0, 0.0) if abs(n[0]) < 0.57 else (0.0, 1.0, 0.0)
+    c = cross(n, e)
+    length = max(math.sqrt(c[0] * c[0] + c[1] * c[1] + c[2] * c[2]), 1e-12)
+    t1 = (c[0] / length, c[1] / length, c[2] / length)
+    return t1, cross(n, t1)
+
+
+@kernel
+def world_inv_inertia(q, inv_inertia_body, out, r):
+    """out[r] = R diag(I_b⁻¹) Rᵀ, the world inverse inertia of a body turned
+    by the unit quaternion q (1/(kg m²))."""
+    w, x, y, z = q
+    m00, m01, m02 = 1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)
+    m10, m11, m12 = 2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)
+    m20, m21, m22 = 2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)
+    d0, d1, d2 = inv_inertia_body
+    rows = ((m00, m01, m02), (m10, m11, m12), (m20, m21, m22))
+    for i in range(3):
+        ri = rows[i]
+        for j in range(i, 3):
+            rj = rows[j]
+            v = ri[0] * d0 * rj[0] + ri[1] * d1 * rj[1] + ri[2] * d2 * rj[2]
+            out[r, i, j] = v
+            out[r, j, i] = v
+
+
+@kernel
+def _effective_mass(inv_mass_sum, ia, ib, r, ra, rb, d):
+    """1 / (1/m_a + 1/m_b + (r_a × d)·I_a⁻¹(r_a × d) + (r_b × d)·I_b⁻¹(r_b × d)), kg."""
+    ran, rbn = cross(ra, d), cross(rb, d)
+    k = inv_mass_sum + dot(ran, _mat_vec(ia, r, ran)) + dot(rbn, _mat_vec(ib, r, rbn))
+    return 1.0 / max(k, 1e-30)
+
+
+@parallel_kernel
+def prepare(R, p, point, lam_t, pos, ori, vel, angvel, inv_inertia, mu_static, mu_kinetic, stick_speed, vn0):
+    """Fill the step-constant fields of every row of ``R`` from its manifold
+    (``R.n``, ``point`` (R, 4, 3), ``R.sep0`` holding the separations,
+    ``R.valid``) at the step's start state: lever arms in the world and body
+    frames, world inverse inertias, tangents, effective masses, the friction
+    coefficient of each point (static while it sticks: tangential speed
+    under ``stick_speed`` m/s, else kinetic), the tangent parts of the
+    warm-start impulses ``lam_t`` (R, 4, 3), and the normal speeds ``vn0``."""
+    for r in prange(R.w.size):
+        _prepare_row(R, r, p, point, lam_t, pos, ori, vel, angvel, inv_inertia, mu_static, mu_kinetic,
+                     stick_speed, vn0)
+
+
+@kernel
+def _prepare_row(R, r, p, point, lam_t, pos, ori, vel, angvel, inv_inertia, mu_static, mu_kinetic, stick_speed,
+                 vn0):
+    """``prepare`` of row r."""
+    w, a, b = R.w[r], R.a[r], R.b[r]
+    xa, xb = load3(pos[w], a), load3(pos[w], b)
+    qa, qb = load4(ori[w], a), load4(ori[w], b)
+    R.xa0[r, 0], R.xa0[r, 1], R.xa0[r, 2] = xa
+    R.xb0[r, 0], R.xb0[r, 1], R.xb0[r, 2] = xb
+    world_inv_inertia(qa, load3(inv_inertia, a), R.ia, r)
+    world_inv_inertia(qb, load3(inv_inertia, b), R.ib, r)
+    n = load3(R.n, r)
+    t1, t2 = tangents(n)
+    R.t1[r, 0], R.t1[r, 1], R.t1[r, 2] = t1
+    R.t2[r, 0], R.t2[r, 1], R.t2[r, 2] = t2
+    base = R.inv_ma[r] + R.inv_mb[r]
+    va, vb = load3(vel[w], a), load3(vel[w], b)
+    wa, wb = load3(angvel[w], a), load3(angvel[w], b)
+    for j in range(4):
+        x = (point[r, j, 0], point[r, j, 1], point[r, j, 2])
+        ra, rb = sub(x, xa), sub(x, xb)
+        for k in range(3):
+            R.ra[r, j, k] = ra[k]
+            R.rb[r, j, k] = rb[k]
+        la, lb = rotate_inv(qa, ra), rotate_inv(qb, rb)
+        for k in range(3):
+            R.la[r, j, k] = la[k]
+            R.lb[r, j, k] = lb[k]
+        valid = R.valid[r, j]
+        if not valid:
+            R.sep0[r, j] = 0.0
+        R.mn[r, j] = _effective_mass(base, R.ia, R.ib, r, ra, rb, n) if valid else 0.0
+        R.mt1[r, j] = _effective_mass(base, R.ia, R.ib, r, ra, rb, t1) if valid else 0.0
+        R.mt2[r, j] = _effective_mass(base, R.ia, R.ib, r, ra, rb, t2) if valid else 0.0
+        vrel = sub(sub(add(vb, cross(wb, rb)), va), cross(wa, ra))
+        vn = dot(vrel, n)
+        vn0[r, j] = vn
+        R.vn_close[r, j] = vn
+        vt = sub(vrel, scale(vn, n))
+        R.mu[r, j] = mu_static[p[r]] if dot(vt, vt) < stick_speed * stick_speed else mu_kinetic[p[r]]
+        lt = (lam_t[r, j, 0], lam_t[r, j, 1], lam_t[r, j, 2])
+        R.lam_t1[r, j] = dot(lt, t1)
+        R.lam_t2[r, j] = dot(lt, t2)
+
