@@ -1,7 +1,8 @@
-"""ragdoll's physics engine: batched rigid bodies, joints and contacts on numpy."""
+"""ragdoll's physics engine: batched rigid bodies, joints and contacts, its step compiled by numba."""
 from .allocator import keep_freed_memory
 from .builder import WORLD, SceneBuilder, STANDARD_GRAVITY, GRAVITATIONAL_CONSTANT
 from .control import Control, apply_impulse
+from .core.jit import get_threads, set_threads
 from .errors import SceneError, SimulationError
 from .materials import Material, MaterialTable
 from .model import Model

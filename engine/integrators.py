@@ -18,135 +18,70 @@ Three schemes, chosen by ``Settings.integrator``:
   after it as velocity changes that also move the positions (h Δv).
 
 Angular velocities are world-frame; inertia is diagonal in the body frame.
+Each function here is one call of a compiled kernel over every world
+(:mod:`engine.core.integrate`, the force effects in :mod:`engine.core.effects`),
+with the model's arrays compiled at build (``Model.effect_arrays``).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from .effects import Accumulator, BodyView
-from .math3d import cross, quat_integrate, quat_mul, quat_normalize, quat_rotate, quat_rotate_inv
-
-# Strang splitting of the free rigid body: (axis, fraction of h).
-_SPLIT = ((0, 0.5), (1, 0.5), (2, 1.0), (1, 0.5), (0, 0.5))
+from .core import integrate as K
 
 
-def inv_inertia_apply(model, q, v):
-    """World-frame I⁻¹ v for every body: R (I_b⁻¹ ⊙ (Rᵀ v)), arrays (W, N, ...)."""
-    return quat_rotate(q, model.inv_inertia * quat_rotate_inv(q, v))
-
-
-def inertia_apply(model, q, v):
-    """World-frame I v for every body (static bodies: 0)."""
-    inertia = np.where(model.dynamic[:, None], model.inertia_safe, 0.0)
-    return quat_rotate(q, inertia * quat_rotate_inv(q, v))
-
-
-def accumulate(model, view, control):
-    """Sum every force effect at ``view``; returns (linear acc, angular acc)."""
-    acc = Accumulator.zeros(view.position.shape)
-    for effect in model.force_hooks:
-        effect.forces(model, view, acc)
+def _control_arrays(control, num_worlds):
+    """The control's (W, N, 3) forces and torques and (W, A) motor torques
+    as float arrays for the kernels; (W, 0, 3) and (W, 0) where absent."""
+    force = torque = motor = None
     if control is not None:
-        if control.force is not None:
-            acc.force += control.force
-        if control.torque is not None:
-            acc.torque += control.torque
-        if control.motor is not None and model.joints is not None:
-            model.joints.motor_torques(model, view, control.motor, acc)
-    lin = acc.accel + acc.force * model.inv_mass[:, None]
-    ang = inv_inertia_apply(model, view.orientation, acc.torque)
-    return lin, ang
+        force, torque, motor = control.force, control.torque, control.motor
+    none3 = np.empty((num_worlds, 0, 3))
+    return (none3 if force is None else np.ascontiguousarray(force, dtype=np.float64),
+            none3 if torque is None else np.ascontiguousarray(torque, dtype=np.float64),
+            np.empty((num_worlds, 0)) if motor is None else np.ascontiguousarray(motor, dtype=np.float64))
 
 
-def rotate_free(model, q, omega, h):
-    """Torque-free rotation over h by the principal-axis splitting.
-
-    Returns the new orientation and world angular velocity; the body-frame
-    angular momentum L_b = I ω_b is turned opposite to each partial rotation,
-    which is exactly how a fixed world vector looks from the turning body.
-    """
-    inertia = model.inertia_safe
-    lb = inertia * quat_rotate_inv(q, omega)
-    for axis, frac in _SPLIT:
-        j, k = (axis + 1) % 3, (axis + 2) % 3
-        theta = (frac * h) * lb[..., axis] / inertia[:, axis]
-        c, s = np.cos(theta), np.sin(theta)
-        lj, lk = lb[..., j].copy(), lb[..., k]
-        lb[..., j] = c * lj + s * lk
-        lb[..., k] = c * lk - s * lj
-        q = _turn_about_axis(q, axis, np.cos(0.5 * theta), np.sin(0.5 * theta))
-    q = quat_normalize(q)
-    return q, quat_rotate(q, lb / inertia)
+def _joint_broken(state):
+    broken = state.arrays.get("joint_broken")
+    return np.zeros((state.num_worlds, 0), dtype=bool) if broken is None else broken
 
 
-def _turn_about_axis(q, axis, c, s):
-    """q ⊗ (c, s e_axis): the Hamilton product with a rotation about a body
-    axis, its zero terms left out (the same sums as ``quat_mul``)."""
-    j, k = 1 + (axis + 1) % 3, 1 + (axis + 2) % 3
-    a = 1 + axis
-    qw, qa, qj, qk = q[..., 0], q[..., a], q[..., j], q[..., k]
-    out = np.empty(q.shape)
-    out[..., 0] = qw * c - qa * s
-    out[..., a] = qw * s + qa * c
-    out[..., j] = qj * c + qk * s
-    out[..., k] = qk * c - qj * s
-    return out
+def _force_arguments(model, state, control):
+    fx = model.effect_arrays
+    return (fx.bodies, fx.gravitation, fx.springs, fx.motors, state.position, state.orientation, state.velocity,
+            state.angular_velocity, state.spring_broken, _joint_broken(state),
+            *_control_arrays(control, state.num_worlds))
 
 
 def integrate_velocities(model, state, control, h):
     """Semi-implicit velocity update v += h a(x, v), ω += h α."""
-    view = BodyView.of(state)
-    lin, ang = accumulate(model, view, control)
-    state.velocity += h * lin
-    state.angular_velocity += h * ang
+    K.integrate_velocities_batch(*_force_arguments(model, state, control), h)
+
+
+def velocity_effects(model, state, h):
+    """The implicit velocity effects after the forces: the stiff springs'
+    backward-Euler impulses, then damping v ← v / (1 + h c)."""
+    fx = model.effect_arrays
+    if fx.springs.stiff.size == 0 and fx.damping.linear.size == 0:
+        return
+    K.velocity_effects_batch(fx.bodies, fx.springs, fx.damping, state.position, state.orientation, state.velocity,
+                             state.angular_velocity, state.spring_broken, h)
 
 
 def integrate_positions(model, state, h):
     """x += h v; free rotation with the gyroscopic term (splitting)."""
-    state.position += h * state.velocity
-    q, w = rotate_free(model, state.orientation, state.angular_velocity, h)
-    state.orientation[...] = q
-    state.angular_velocity[...] = w
+    K.integrate_positions_batch(model.effect_arrays.bodies, state.position, state.orientation, state.velocity,
+                                state.angular_velocity, h)
 
 
 def explicit_euler(model, state, control, h):
     """Thesis equations 4 and 5: positions from the old velocities, velocities
     from the old forces; ω̇ = I⁻¹(τ - ω × Iω) explicitly."""
-    view = BodyView.of(state, copy=True)
-    lin, ang = accumulate(model, view, control)
-    w = view.angular_velocity
-    gyro = inv_inertia_apply(model, view.orientation, cross(w, inertia_apply(model, view.orientation, w)))
-    state.position += h * view.velocity
-    state.orientation[...] = quat_integrate(view.orientation, w, h)
-    state.velocity += h * lin
-    state.angular_velocity += h * (ang - gyro)
-
-
-def _derivative(model, view, control):
-    lin, ang = accumulate(model, view, control)
-    w = view.angular_velocity
-    gyro = inv_inertia_apply(model, view.orientation, cross(w, inertia_apply(model, view.orientation, w)))
-    zeros = np.zeros(w.shape[:-1] + (1,))
-    qdot = 0.5 * quat_mul(np.concatenate((zeros, w), axis=-1), view.orientation)
-    return view.velocity, qdot, lin, ang - gyro
+    K.explicit_euler_batch(*_force_arguments(model, state, control), h)
 
 
 def runge_kutta4(model, state, control, h):
     """Classical RK4 over (x, q, v, ω) under the force effects; the quaternion
     is renormalised at the end. Returns nothing; updates the state."""
-    x0, q0, v0, w0 = state.position, state.orientation, state.velocity, state.angular_velocity
-    base = BodyView.of(state)
-    k1 = _derivative(model, base, control)
-    stages = [k1]
-    for frac in (0.5, 0.5, 1.0):
-        k = stages[-1]
-        view = BodyView(x0 + frac * h * k[0], quat_normalize(q0 + frac * h * k[1]),
-                        v0 + frac * h * k[2], w0 + frac * h * k[3], base.spring_broken, base.joint_broken)
-        stages.append(_derivative(model, view, control))
-    k1, k2, k3, k4 = stages
-    comb = [(a + 2 * b + 2 * c + d) * (h / 6.0) for a, b, c, d in zip(k1, k2, k3, k4)]
-    state.position += comb[0]
-    state.orientation[...] = quat_normalize(q0 + comb[1])
-    state.velocity += comb[2]
-    state.angular_velocity += comb[3]
+    K.runge_kutta4_batch(*_force_arguments(model, state, control), h)

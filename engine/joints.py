@@ -143,9 +143,9 @@ class JointSet:
                     suffix = AXIS_NAMES[self.kind[i]][axis]
                     actuators.append(Actuator(j.name + suffix, i, axis, float(self.max_torque[i, axis])))
         self.actuators = tuple(actuators)
+        # The motors' torques are summed with the other forces by the integration
+        # kernels (engine.core.effects.accumulate), from these arrays.
         self.act_joint = np.array([a.joint for a in actuators], dtype=np.int64)
-        self._motor_child = Scatter(self.child[self.act_joint])
-        self._motor_parent = Scatter(self.parent[self.act_joint])
         self.act_axis = np.array([a.axis for a in actuators], dtype=np.int64)
         self.act_max = np.array([a.max_torque for a in actuators], dtype=float)
 
@@ -423,23 +423,6 @@ class JointSet:
         return np.where(state.joint_broken, 0.0, v)
 
     # ----------------------------------------------------------------- forces
-    def motor_torques(self, model, view, u, acc):
-        """Motor torques clamped to each axis's maximum, +τ on the child and -τ
-        on the parent, about the parent joint frame's axis."""
-        if not self.actuators:
-            return
-        j = self.act_joint
-        tau = np.clip(u, -self.act_max, self.act_max)
-        qa = view.orientation[:, self.parent[j]]
-        fpw = quat_mul(qa, self.frame_p[j])
-        basis = np.stack((EX, EY, EZ))[self.act_axis]
-        axis = quat_rotate(fpw, basis)
-        t = axis * tau[..., None]
-        if self.breakable:
-            t = t * (~view.joint_broken[:, j])[..., None]
-        scatter_add(acc.torque, self._motor_child, t)
-        scatter_add(acc.torque, self._motor_parent, -t)
-
     def passive(self, model, state, h):
         """Muscle tone: an implicit spring-damper on each joint axis towards the
         rest angles, k (N·m/rad) and c (N·m·s/rad), stable for any stiffness.

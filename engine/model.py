@@ -12,6 +12,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from .core.effects import compile_effects
 from .effects.damping import Damping
 from .effects.gravitation import Gravitation
 from .effects.gravity import Gravity
@@ -34,7 +35,9 @@ class Model:
     ``mass`` (kg, inf for static), ``inv_mass`` (1/kg, 0 for static),
     ``inertia`` (N, 3) principal moments in kg·m² (body frame = principal
     frame), ``inv_inertia`` (0 for static), ``dynamic`` (bool), ``shape_type``
-    and ``shape_params`` (see :mod:`engine.shapes`).
+    and ``shape_params`` (see :mod:`engine.shapes`). ``effect_arrays``: the
+    bodies', effects' and motors' arrays the integration kernels read
+    (:func:`engine.core.effects.compile_effects`).
     """
 
     def __init__(self, builder):
@@ -93,8 +96,8 @@ class Model:
 
         self.contacts = compile_contacts(self, builder)
 
-        self.force_hooks = tuple(e for e in self.effects.values() if getattr(e, "forces", None))
-        self.velocity_hooks = tuple(e for e in self.effects.values() if getattr(e, "velocity", None))
+        # The bodies', effects' and motors' arrays for the integration kernels, once.
+        self.effect_arrays = compile_effects(self)
         self.end_hooks = tuple(e for e in self.effects.values() if getattr(e, "end_of_step", None))
 
         self._initial = {

@@ -1,7 +1,7 @@
 """Scatter-add over the body axis: ``out[:, t[i]] += v[:, i]`` for a fixed
 list of targets t, in position order (as ``np.add.at`` sums), but in a few
 indexed adds on large batches, where ``np.add.at`` costs several times more.
-Used by the joint tree's solve and the joints' warm start and motor torques;
+Used by the joint tree's solve and the joints' warm start;
 ``occurrence_rank`` also by the static contact projection's moves."""
 
 from __future__ import annotations

@@ -39,7 +39,7 @@ from .articulated_contacts import ArticulatedContacts
 from . import contact_projection
 from .control import Control
 from .errors import SimulationError
-from .integrators import explicit_euler, integrate_positions, integrate_velocities, runge_kutta4
+from .integrators import explicit_euler, integrate_positions, integrate_velocities, runge_kutta4, velocity_effects
 from .math3d import quat_integrate
 
 
@@ -133,7 +133,7 @@ def _advance(model, state, control):
             model.joints.passive(model, state, h)
         if s.integrator == "symplectic":
             integrate_velocities(model, state, control, h)
-            _velocity_effects(model, state, h)
+            velocity_effects(model, state, h)
             _solve(model, state, constraints, h, use_bias=True)
             integrate_positions(model, state, h)
             _positions_moved(model, state, constraints)
@@ -141,14 +141,14 @@ def _advance(model, state, control):
         elif s.integrator == "euler":
             explicit_euler(model, state, control, h)
             _positions_moved(model, state, constraints)
-            _velocity_effects(model, state, h)
+            velocity_effects(model, state, h)
             _solve(model, state, constraints, h, use_bias=True)
             _solve(model, state, constraints, h, use_bias=False)
         else:
             runge_kutta4(model, state, control, h)
             _positions_moved(model, state, constraints)
             v1, w1 = state.velocity.copy(), state.angular_velocity.copy()
-            _velocity_effects(model, state, h)
+            velocity_effects(model, state, h)
             _solve(model, state, constraints, h, use_bias=True)
             # Constraint impulses move the positions by h Δv beyond the RK4 flow.
             state.position += h * (state.velocity - v1)
@@ -205,11 +205,6 @@ def _positions_moved(model, state, constraints):
     7 and 34 cm instead of 4 (benchmarks.stability ragdoll_impact_100)."""
     if model.joints is not None and model.joints in constraints:
         model.joints.positions_moved(model, state)
-
-
-def _velocity_effects(model, state, h):
-    for effect in model.velocity_hooks:
-        effect.velocity(model, state, h)
 
 
 def _solve(model, state, constraints, h, use_bias):

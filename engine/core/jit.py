@@ -11,9 +11,19 @@ return inf/NaN on a division by zero instead of raising
 
 from __future__ import annotations
 
+import numbers
 import os
 
 import numba
+
+# engine.ParallelStepper forks worker processes that step with these kernels.
+# GNU OpenMP (numba's "omp" layer on Linux) terminates a forked child that
+# enters a parallel region once its parent has used one; "forksafe" takes TBB
+# where it is installed and numba's own workqueue otherwise, both safe across
+# fork. Set before any parallel kernel runs, which is when numba loads the
+# layer; an explicit NUMBA_THREADING_LAYER is kept.
+if "NUMBA_THREADING_LAYER" not in os.environ:
+    numba.config.THREADING_LAYER = "forksafe"
 
 kernel = numba.njit(cache=True, fastmath=False, error_model="numpy", nogil=True)
 parallel_kernel = numba.njit(cache=True, fastmath=False, error_model="numpy", nogil=True, parallel=True)
@@ -32,11 +42,11 @@ def set_threads(n: int | None = None) -> int:
     """
     if n is None:
         n = numba.config.NUMBA_NUM_THREADS
-    if isinstance(n, bool) or not isinstance(n, int) or not 1 <= n <= numba.config.NUMBA_NUM_THREADS:
+    if isinstance(n, bool) or not isinstance(n, numbers.Integral) or not 1 <= n <= numba.config.NUMBA_NUM_THREADS:
         raise ValueError(f"threads must be an integer in 1..{numba.config.NUMBA_NUM_THREADS} "
                          f"(NUMBA_NUM_THREADS), got {n!r}")
-    numba.set_num_threads(n)
-    return n
+    numba.set_num_threads(int(n))
+    return int(n)
 
 
 def get_threads() -> int:

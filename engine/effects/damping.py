@@ -1,6 +1,7 @@
 """Linear and angular velocity damping: dv/dt = -c v, integrated implicitly,
 v ← v / (1 + h c), which never reverses a velocity however large c h is (the
-form Box2D v3 uses in ``b2IntegrateVelocitiesTask``)."""
+form Box2D v3 uses in ``b2IntegrateVelocitiesTask``). The update is a kernel
+(:func:`engine.core.effects.velocity_effects`); this object holds the rates."""
 
 from __future__ import annotations
 
@@ -13,7 +14,3 @@ class Damping:
     def __init__(self, linear, angular):
         self.linear = np.asarray(linear, dtype=float)  # (N,) 1/s
         self.angular = np.asarray(angular, dtype=float)
-
-    def velocity(self, model, state, h):
-        state.velocity *= (1.0 / (1.0 + h * self.linear))[:, None]
-        state.angular_velocity *= (1.0 / (1.0 + h * self.angular))[:, None]

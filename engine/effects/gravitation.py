@@ -1,6 +1,7 @@
 """Universal gravitation between every pair of dynamic bodies (thesis equation 6):
 F = G m_i m_j / r², along the line of centres; with a softening length ε the
-law becomes G m_i m_j r / (r² + ε²)^(3/2), which keeps close passes finite."""
+law becomes G m_i m_j r / (r² + ε²)^(3/2), which keeps close passes finite. The
+step's forces are a kernel (:mod:`engine.core.effects`) over the pairs here."""
 
 from __future__ import annotations
 
@@ -19,15 +20,6 @@ class Gravitation:
         self.G = float(G)
         self.eps2 = float(softening) ** 2
         self.gmm = self.G * mass[self.i] * mass[self.j]  # (P,)
-
-    def forces(self, model, bodies, acc):
-        if self.i.size == 0:
-            return
-        d = bodies.position[:, self.j] - bodies.position[:, self.i]  # (W, P, 3)
-        r2 = dot(d, d) + self.eps2
-        f = d * (self.gmm / (r2 * np.sqrt(r2)))[..., None]
-        np.add.at(acc.force, (slice(None), self.i), f)
-        np.add.at(acc.force, (slice(None), self.j), -f)
 
     def potential(self, model, state):
         """Potential energy per world, J: -Σ G m_i m_j / sqrt(r² + ε²)."""

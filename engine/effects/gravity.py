@@ -1,5 +1,6 @@
 """Uniform gravity: every dynamic body accelerates by g (thesis equation 6 at the
-Earth's surface: F = m g, so 2.5 kg under 9.80665 m/s² feels 24.516625 N)."""
+Earth's surface: F = m g, so 2.5 kg under 9.80665 m/s² feels 24.516625 N). The
+step adds ``accel`` in its kernels (:mod:`engine.core.effects`)."""
 
 from __future__ import annotations
 
@@ -13,9 +14,6 @@ class Gravity:
         # (N, 3): g on dynamic bodies, zero on static ones.
         self.accel = np.where(dynamic[:, None], np.asarray(gravity, dtype=float)[None, :], 0.0)
         self.g = np.asarray(gravity, dtype=float)
-
-    def forces(self, model, bodies, acc):
-        acc.accel += self.accel
 
     def weight(self, mass):
         """Force in N that gravity exerts on a mass in kg: F = m g."""

@@ -17,7 +17,12 @@ Two integration paths, chosen per spring at build time:
   along its line (Catto, "Soft Constraints", GDC 2011):
   P = -h (k C + (c + h k) Ċ) / (1 + h (c + h k) / m_eff),
   unconditionally stable, at the price of numerical damping.
-  These are coloured so no body is shared inside one vectorised sweep.
+  They are updated one after another, colour after colour (no dynamic body
+  twice in a colour).
+
+The step's forces and impulses are kernels (:mod:`engine.core.effects`, from
+the arrays here); this object keeps the parameters, the breaking at the end
+of a step and the elastic energy.
 """
 
 from __future__ import annotations
@@ -25,16 +30,10 @@ from __future__ import annotations
 import numpy as np
 
 from ..coloring import color_pairs
-from ..math3d import cross, dot, quat_rotate, quat_rotate_inv
-from ..soft import implicit_spring_impulse
+from ..math3d import cross, dot, quat_rotate
 from ..state import Event
 
 STIFF_OMEGA_H = 1.0
-
-
-def _inv_inertia_world_apply(q, inv_inertia_body, v):
-    """I_w⁻¹ v = R (I_b⁻¹ ⊙ (Rᵀ v)) for (W, K, 4) q, (K, 3) inv inertia."""
-    return quat_rotate(q, inv_inertia_body * quat_rotate_inv(q, v))
 
 
 class Springs:
@@ -58,10 +57,6 @@ class Springs:
         self.stiff_colors = color_pairs(self.a[stiff], self.b[stiff], dynamic)
         stiff_idx = np.flatnonzero(stiff)
         self.stiff_colors = [stiff_idx[c] for c in self.stiff_colors]
-        if self.explicit.size == 0:
-            self.forces = None  # no explicit springs: skip the hook entirely
-        if not self.stiff_colors:
-            self.velocity = None
 
     # Geometry ----------------------------------------------------------------
     def _ends(self, idx, position, orientation, velocity, angular_velocity):
@@ -73,38 +68,6 @@ class Springs:
         n = d / np.maximum(length, 1e-12)[..., None]
         vrel = velocity[:, b] + cross(angular_velocity[:, b], rb) - velocity[:, a] - cross(angular_velocity[:, a], ra)
         return a, b, ra, rb, n, length, dot(vrel, n)
-
-    def forces(self, model, bodies, acc):
-        idx = self.explicit
-        a, b, ra, rb, n, length, ldot = self._ends(
-            idx, bodies.position, bodies.orientation, bodies.velocity, bodies.angular_velocity)
-        mag = self.k[idx] * (length - self.rest[idx]) + self.c[idx] * ldot
-        if self.breakable:
-            mag = np.where(bodies.spring_broken[:, idx], 0.0, mag)
-        fb = -mag[..., None] * n  # (W, S, 3) force on body b
-        np.add.at(acc.force, (slice(None), b), fb)
-        np.add.at(acc.force, (slice(None), a), -fb)
-        np.add.at(acc.torque, (slice(None), b), cross(rb, fb))
-        np.add.at(acc.torque, (slice(None), a), -cross(ra, fb))
-
-    def velocity(self, model, state, h):
-        inv_m, inv_i = model.inv_mass, model.inv_inertia
-        for idx in self.stiff_colors:
-            a, b, ra, rb, n, length, ldot = self._ends(
-                idx, state.position, state.orientation, state.velocity, state.angular_velocity)
-            qa, qb = state.orientation[:, a], state.orientation[:, b]
-            rna, rnb = cross(ra, n), cross(rb, n)
-            ia = _inv_inertia_world_apply(qa, inv_i[a], rna)
-            ib = _inv_inertia_world_apply(qb, inv_i[b], rnb)
-            inv_meff = inv_m[a] + inv_m[b] + dot(rna, ia) + dot(rnb, ib)
-            impulse = implicit_spring_impulse(self.k[idx], self.c[idx], h, length - self.rest[idx], ldot, inv_meff)
-            if self.breakable:
-                impulse = np.where(state.spring_broken[:, idx], 0.0, impulse)
-            p = impulse[..., None] * n
-            state.velocity[:, b] += p * inv_m[b][:, None]
-            state.velocity[:, a] -= p * inv_m[a][:, None]
-            state.angular_velocity[:, b] += impulse[..., None] * ib
-            state.angular_velocity[:, a] -= impulse[..., None] * ia
 
     def end_of_step(self, model, state, events):
         if not self.breakable:

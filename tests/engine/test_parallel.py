@@ -44,6 +44,28 @@ def test_parallel_steps_are_bit_identical_to_one_process():
     assert np.abs(serial.position - model.initial_state(5).position).max() > 0.05  # it moved
 
 
+def test_workers_run_parallel_kernels_after_the_parent_did():
+    """The parent steps a batch large enough for the kernels' parallel loop,
+    then forks workers with as many worlds each: they step it too (a forked
+    child of a process that used GNU OpenMP is terminated when it enters a
+    parallel region; the kernels' threading layer is one that survives fork),
+    bit for bit as one process."""
+    from engine.core.jit import SERIAL_BELOW
+
+    model = ragdoll_on_ground()
+    W = 2 * SERIAL_BELOW
+    controls = random_controls(model, W, 4, seed=2)
+    serial = model.initial_state(W)
+    e.step(model, serial, controls[0])  # the parallel loop, in the parent
+    shared = serial.copy()
+    for c in controls[1:]:
+        e.step(model, serial, c)
+    with e.ParallelStepper(model, shared, processes=2) as stepper:
+        for c in controls[1:]:
+            stepper.step(c)
+        assert shared.equal(serial)
+
+
 def test_the_parent_writes_between_steps_reach_the_workers():
     model = ragdoll_on_ground()
     controls = random_controls(model, 4, 10, seed=1)

@@ -1,0 +1,78 @@
+"""Compile the step's kernels into numba's cache ahead of use.
+
+    python -m engine.warmup
+
+steps a few small scenes that between them reach every kernel on the
+default path and the other integrators (a humanoid on the ground with its
+motors, boxes, spheres and capsules on the ground, springs and universal
+gravitation), for one world and for a batch. The machine code lands in
+numba's cache (``cache=True``: next to the sources, or under
+``NUMBA_CACHE_DIR``), so a later process starts stepping at once. CI runs it
+once before the tests.
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+
+import numpy as np
+
+
+def scenes():
+    """(name, model) of the warm-up scenes."""
+    import engine as e
+    from engine.humanoid import add_humanoid
+
+    out = []
+    b = e.SceneBuilder()
+    b.add_ground()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        add_humanoid(b)
+    out.append(("humanoid", b.build()))
+    for integrator in ("symplectic", "euler", "rk4"):
+        b = e.SceneBuilder(integrator=integrator)
+        b.add_ground()
+        b.add_body("ball", e.Sphere(0.1), mass=1.0, position=(0, 0, 0.3), material="rubber")
+        b.add_body("rod", e.Capsule(0.05, 0.2), mass=2.0, position=(0.5, 0, 0.3))
+        b.add_body("box", e.Box((0.1, 0.1, 0.1)), mass=1.0, position=(1.0, 0, 0.3))
+        b.add_body("top", e.Box((0.1, 0.1, 0.1)), mass=1.0, position=(1.0, 0, 0.55))
+        b.add_spring("s", "ball", None, anchor_b=(0, 0, 1.0), stiffness=50.0)
+        b.add_hinge("pivot", None, "rod", anchor=(0.5, 0, 0.55), axis=(0, 1, 0), limits=(-1.0, 1.0),
+                    max_torque=5.0)
+        out.append((f"shapes_{integrator}", b.build()))
+    b = e.SceneBuilder(gravity=None)
+    b.enable("gravitation", G=1.0)
+    b.add_body("sun", e.Sphere(0.1), mass=10.0, position=(0, 0, 0))
+    b.add_body("planet", e.Sphere(0.01), mass=0.01, position=(1, 0, 0), velocity=(0, 3, 0))
+    out.append(("gravitation", b.build()))
+    return out
+
+
+def warm(verbose: bool = False) -> float:
+    """Step every warm-up scene for one world and a batch; returns seconds."""
+    import engine as e
+
+    t0 = time.perf_counter()
+    for name, model in scenes():
+        for worlds in (1, 16):
+            state = model.initial_state(worlds)
+            control = None
+            if model.num_actuators:
+                rng = np.random.default_rng(0)
+                control = e.Control(motor=rng.uniform(-1, 1, (worlds, model.num_actuators)) * 10.0)
+            for _ in range(3):
+                e.step(model, state, control)
+        if verbose:
+            print(f"warmed {name} in {time.perf_counter() - t0:.1f} s", flush=True)
+    return time.perf_counter() - t0
+
+
+def main():
+    seconds = warm(verbose=True)
+    print(f"kernels compiled and cached in {seconds:.1f} s")
+
+
+if __name__ == "__main__":
+    main()
