@@ -45,18 +45,14 @@ from .math3d import (EX, EY, EZ, clamp_norm, cross, quat_rotate_inv, dot, mat_ve
                      quat_rotate, sym3_solve, quat_to_matrix, world_inv_inertia)
 from .joint_projection import project_joints, undo_unfollowed_moves
 from .scatter import Scatter, scatter_add
+from .core.joints import (BALL, FIXED, HINGE, TWIST_LIMIT_MAX_SWING, JointArrays, JointGeometry,  # noqa: F401
+                          empty_geometry, joint_geometry)
 from .soft import implicit_spring_impulse_from, implicit_spring_terms, make_soft, select_softness
 from .state import Event
 
-HINGE, BALL, FIXED = 0, 1, 2
 KINDS = {"hinge": HINGE, "ball": BALL, "fixed": FIXED}
 JOINT_HERTZ_CAP = 0.5  # joint stiffness at most this x the substep rate
 AXIS_NAMES = {HINGE: ("",), BALL: (":twist", ":swing_y", ":swing_z")}
-# The twist of a ball joint is undefined at a swing of π (the child's twist axis
-# opposite the parent's) and its rate θ̇ = ω·(a + c)/(1 + cos φ) grows as
-# 1/cos(φ/2) on the way there: beyond this swing (rad) its limit row is dropped.
-TWIST_LIMIT_MAX_SWING = 5.0 * math.pi / 6.0
-_COS_HALF_TWIST_SWING = math.cos(TWIST_LIMIT_MAX_SWING / 2.0)
 
 
 @dataclass(frozen=True)
@@ -68,37 +64,6 @@ class Actuator:
     joint: int
     axis: int
     max_torque: float
-
-
-def swing_twist(q_rel):
-    """Twist angle about x and swing vector (φ d_y, φ d_z) of relative rotations.
-
-    q_rel = q_swing ⊗ q_twist, q_twist = (w, x, 0, 0)/‖·‖; the swing
-    quaternion then has no x part: (s_w, 0, s_y, s_z). Returns twist (…,),
-    swing angle φ (…,), swing direction (d_y, d_z) (…, 2) and the swing
-    quaternion components.
-    """
-    w, x = q_rel[..., 0], q_rel[..., 1]
-    tn = np.sqrt(w * w + x * x)
-    degenerate = tn < 1e-9
-    tn = np.where(degenerate, 1.0, tn)
-    tw, tx = np.where(degenerate, 1.0, w / tn), np.where(degenerate, 0.0, x / tn)
-    # q_swing = q_rel ⊗ conj(q_twist), conj(q_twist) = (tw, -tx, 0, 0)
-    y, z = q_rel[..., 2], q_rel[..., 3]
-    sw = w * tw + x * tx
-    sy = y * tw - z * tx
-    sz = z * tw + y * tx
-    twist = 2.0 * np.arctan2(tx, tw)
-    twist = np.where(twist > math.pi, twist - 2 * math.pi, np.where(twist < -math.pi, twist + 2 * math.pi, twist))
-    # Keep the swing quaternion in the w >= 0 hemisphere (angle in [0, π]).
-    sign = np.where(sw < 0, -1.0, 1.0)
-    sw, sy, sz = sw * sign, sy * sign, sz * sign
-    s = np.sqrt(sy * sy + sz * sz)
-    phi = 2.0 * np.arctan2(s, sw)
-    safe = np.where(s > 1e-12, s, 1.0)
-    dy = np.where(s > 1e-12, sy / safe, 1.0)
-    dz = np.where(s > 1e-12, sz / safe, 0.0)
-    return twist, phi, dy, dz
 
 
 class JointSet:
@@ -285,10 +250,11 @@ class JointSet:
                                           ).astype(np.int64) if n else np.zeros(0, dtype=np.int64)
         self._warm_scatter = Scatter(np.concatenate((self.parent[self._warm_joints],
                                                      self.child[self._warm_joints]))[self._warm_order])
-        self._frames_on = False  # frames of _frames_state cached between begin_step and end_step
-        self._frames = self._frames_state = None
-        self._limits = self._swing_twist = None  # of every joint, cached with the frames
-        self._gs_rows = None  # _gs_limit_rows, cached with the frames
+        self.arrays = JointArrays(self.kind, self.parent, self.child, self.frame_p, self.frame_c,
+                                  self.anchor_p, self.anchor_c, np.ascontiguousarray(self.cone))
+        self._frames_on = False  # geometry of _frames_state cached between begin_step and end_step
+        self._frames = self._frames_state = None  # _frames: the JointGeometry of every joint
+        self._gs_rows = None  # _gs_limit_rows, cached with the geometry
 
     # ------------------------------------------------------------------ state
     def initial_arrays(self, W):
@@ -301,19 +267,28 @@ class JointSet:
         }
 
     # --------------------------------------------------------------- geometry
-    def frames(self, state, idx):
-        """World joint frames of parent and child, anchors and lever arms.
-
-        Within a step the frames of every joint are computed once per set of
-        positions (``positions_moved`` drops them) and sliced here."""
+    def geometry(self, state) -> JointGeometry:
+        """Frames, lever arms, swing-twist angles and limit rows of every joint
+        (``engine.core.joints.JointGeometry``, arrays (W, J, ...)). Within a
+        step computed once per set of positions (``positions_moved`` drops it)."""
         if self._frames_on and state is self._frames_state:
             if self._frames is None:
-                self._frames = self._compute_frames(state, self._all)[2:]
-            fpw, fcw, ra, rb = self._frames
-            # take: the same copies as fancy indexing, 2-4x cheaper on small arrays.
-            return (self.parent.take(idx), self.child.take(idx), fpw.take(idx, 1), fcw.take(idx, 1),
-                    ra.take(idx, 1), rb.take(idx, 1))
-        return self._compute_frames(state, idx)
+                self._frames = self._compute_geometry(state)
+            return self._frames
+        return self._compute_geometry(state)
+
+    def _compute_geometry(self, state):
+        g = empty_geometry(state.num_worlds, len(self.names))
+        joint_geometry(self.arrays, state.position, state.orientation, g)
+        return g
+
+    def frames(self, state, idx):
+        """(parent, child, parent frame, child frame, parent lever arm, child
+        lever arm) of joints ``idx``, the last four (W, len(idx), ...) in the world."""
+        g = self.geometry(state)
+        # take: the same copies as fancy indexing, cheaper on small arrays.
+        return (self.parent.take(idx), self.child.take(idx), g.fpw.take(idx, 1), g.fcw.take(idx, 1),
+                g.ra.take(idx, 1), g.rb.take(idx, 1))
 
     def positions_moved(self, model=None, state=None):
         """The bodies moved: frames cached within the step are stale. Given
@@ -352,39 +327,20 @@ class JointSet:
         """Forget what was computed from the last set of positions and
         inertias (limit geometry, swing-twist, limit rows, the tree's
         factors): at the start and end of a step and when the bodies move."""
-        self._limits = self._swing_twist = self._gs_rows = None
+        self._gs_rows = None
         if self.tree is not None:
             self.tree._factored = None
 
     def limit_geometry(self, state, idx):
-        """``_limit_rows`` of joints ``idx``; within a step computed once for
-        every joint per set of positions (with the frames) and sliced here."""
-        if self._frames_on and state is self._frames_state:
-            if self._limits is None:
-                _, _, fpw, fcw, _, _ = self.frames(state, self._all)
-                self._limits = self._limit_rows(self._all, fpw, fcw, self.relative_swing_twist(state, self._all))
-            return tuple(x.take(idx, 1) for x in self._limits)
-        _, _, fpw, fcw, _, _ = self.frames(state, idx)
-        return self._limit_rows(idx, fpw, fcw)
+        """(J_twist, twist, J_swing, C_swing, twist_defined) of joints ``idx``
+        (``engine.core.joints``: the limit rows)."""
+        g = self.geometry(state)
+        return tuple(x.take(idx, 1) for x in (g.jt, g.twist, g.js, g.c_swing, g.twist_defined))
 
     def relative_swing_twist(self, state, idx):
-        """``swing_twist`` of each joint's relative rotation, cached like the frames."""
-        if self._frames_on and state is self._frames_state:
-            if self._swing_twist is None:
-                _, _, fpw, fcw, _, _ = self.frames(state, self._all)
-                self._swing_twist = swing_twist(quat_mul(quat_conj(fpw), fcw))
-            return tuple(x.take(idx, 1) for x in self._swing_twist)
-        _, _, fpw, fcw, _, _ = self.frames(state, idx)
-        return swing_twist(quat_mul(quat_conj(fpw), fcw))
-
-    def _compute_frames(self, state, idx):
-        a, b = self.parent[idx], self.child[idx]
-        qa, qb = state.orientation.take(a, 1), state.orientation.take(b, 1)
-        fpw = quat_mul(qa, self.frame_p[idx])
-        fcw = quat_mul(qb, self.frame_c[idx])
-        ra = quat_rotate(qa, self.anchor_p[idx])
-        rb = quat_rotate(qb, self.anchor_c[idx])
-        return a, b, fpw, fcw, ra, rb
+        """(twist, φ, d_y, d_z) of each joint's relative rotation (``engine.core.joints.swing_twist``)."""
+        g = self.geometry(state)
+        return tuple(x.take(idx, 1) for x in (g.twist, g.phi, g.dy, g.dz))
 
     def angles(self, state, idx=None):
         """Joint angles (W, J, 3) in radians: hinge (θ, 0, 0); ball (twist,
@@ -412,7 +368,7 @@ class JointSet:
         """How far each joint is outside its limits (W, J), rad (0 inside)."""
         idx = np.arange(len(self.names))
         _, _, fpw, fcw, _, _ = self.frames(state, idx)
-        twist, phi, dy, dz = swing_twist(quat_mul(quat_conj(fpw), fcw))
+        twist, phi, dy, dz = self.relative_swing_twist(state, idx)
         v = np.maximum(np.maximum(self.lower - twist, twist - self.upper), 0.0)
         phi_max = 1.0 / np.sqrt((dy / self.cone[:, 0]) ** 2 + (dz / self.cone[:, 1]) ** 2)
         v = np.maximum(v, np.where(self.kind == BALL, np.maximum(phi - phi_max, 0.0), 0.0))
@@ -650,60 +606,6 @@ class JointSet:
             return 0.0
         Jt, _, Js, _, _ = self.limit_geometry(state, idx)
         return (lam[..., 0:1] - lam[..., 1:2]) * Jt + lam[..., 2:3] * Js
-
-    def _limit_rows(self, idx, fpw, fcw, st=None):
-        """Angular Jacobians (world vectors, Ċ = J·(ω_c - ω_p)) and errors of the
-        twist and swing limits.
-
-        Twist: with a, c the parent's and child's x axes and φ the swing angle,
-        θ̇ = ω·(a + c)/(1 + cos φ) = ω·mid / cos(φ/2) exactly (the swing part of
-        ω has no component along a + c). Swing: C = φ_max(1 - f(s)) with
-        f(s) = ‖(s_y/c_y, s_z/c_z)‖ for the swing vector s = φ d, so the cone's
-        boundary is f = 1 and C ≈ φ_max - φ near it; with n = (0, d), m = a × n
-        (parent frame), ṡ = (ω·n) d + (φ/sin φ)(ω·m) d⊥ + φ θ̇ d⊥.
-        Beyond a swing of ``TWIST_LIMIT_MAX_SWING`` the twist row is dropped
-        (``twist_defined`` false; its axis, kept for a stored impulse and the
-        tree's factorisation, is then c) and the size of mid and φ/sin φ in
-        the swing row are held at their values there, so that row stays
-        bounded and continuous: both grew without bound towards π, where a
-        stored impulse along them once kicked a 1 kg foot to 27,000 rad/s.
-        (With |c| held at 1/cos 75° instead of 1, the soft joints' 100 m/s
-        impact opened by 7.9 cm instead of 4.3.)
-        ``st``: the joints' ``swing_twist`` if already known.
-        Returns (J_twist, twist, J_swing, C_swing, twist_defined).
-        """
-        ax_p = quat_rotate(fpw, EX)
-        ax_c = quat_rotate(fcw, EX)
-        twist, phi, dy, dz = swing_twist(quat_mul(quat_conj(fpw), fcw)) if st is None else st
-        ball = (self.kind[idx] == BALL)[:, None]
-        twist_defined = ~(self.kind[idx] == BALL) | (phi <= TWIST_LIMIT_MAX_SWING)
-        mid = ax_p + ax_c
-        mid2 = dot(mid, mid)  # |a + c|² = 4 cos²(φ/2)
-        mid = mid / np.maximum(mid2, 1e-24)[..., None] * 2.0  # (a + c)/(1 + cos φ), |mid| = 1/cos(φ/2)
-        # Beyond the swing limit of the twist, |mid| held at 1/cos(TWIST_LIMIT_MAX_SWING/2), so that
-        # the swing row is continuous there (0 at a swing of π itself, where a + c = 0).
-        hold = 0.5 * np.sqrt(mid2) / _COS_HALF_TWIST_SWING
-        mid = np.where(twist_defined[..., None], mid, mid * hold[..., None])
-        # The dropped twist row keeps an axis (for its stored impulse and the tree's factorisation): c, unit.
-        Jt = np.where(ball, np.where(twist_defined[..., None], mid, ax_c), ax_p)
-        cone = self.cone[idx]
-        cy, cz = cone[:, 0], cone[:, 1]
-        gy, gz = dy / (cy * cy), dz / (cz * cz)
-        f_dir = np.sqrt(gy * dy + gz * dz)  # f(d) = 1/φ_max
-        phi_max = 1.0 / f_dir
-        gy, gz = gy * phi_max, gz * phi_max  # ∇f at s (degree-0 homogeneous)
-        g_n = gy * dy + gz * dz
-        g_m = -gy * dz + gz * dy
-        zero = np.zeros(dy.shape)
-        n = quat_rotate(fpw, np.stack((zero, dy, dz), axis=-1))
-        m = quat_rotate(fpw, np.stack((zero, -dz, dy), axis=-1))
-        phi_r = np.minimum(phi, TWIST_LIMIT_MAX_SWING)
-        sin_phi = np.sin(phi_r)
-        ratio = np.where(sin_phi > 1e-6, phi_r / np.where(sin_phi > 1e-6, sin_phi, 1.0), 1.0)
-        Js = -phi_max[..., None] * (g_n[..., None] * n + (g_m * ratio)[..., None] * m
-                                    + (g_m * phi_r)[..., None] * mid)
-        C_swing = phi_max * (1.0 - phi * f_dir)
-        return Jt, twist, Js, C_swing, twist_defined
 
     def _apply(self, model, state, a, b, ra, rb, P, L):
         """Apply linear impulse P at the anchors and angular impulse L (to the

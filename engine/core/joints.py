@@ -1,0 +1,169 @@
+"""Joint geometry of one world: frames, swing-twist angles and limit rows.
+
+Each joint has a frame in its parent and in its child whose x axis is the
+hinge or twist axis. In the world: f_p = q_p ⊗ frame_p, f_c = q_c ⊗ frame_c,
+anchors' lever arms r_a = R(q_p) anchor_p, r_b = R(q_c) anchor_c. The
+relative rotation q_rel = conj(f_p) ⊗ f_c is split as q_swing ⊗ q_twist with
+the twist about x (the swing-twist decomposition of Jolt's
+SwingTwistConstraint): the hinge angle is the twist angle; a ball joint's
+swing is φ·(d_y, d_z), limited by an elliptic cone of half-angles
+(cone_y, cone_z).
+
+Limit rows (angular Jacobians, Ċ = J·(ω_c - ω_p), world vectors). Twist:
+with a, c the parent's and child's x axes and φ the swing angle,
+θ̇ = ω·(a + c)/(1 + cos φ) = ω·mid / cos(φ/2) exactly (the swing part of ω
+has no component along a + c). Swing: C = φ_max (1 - f(s)) with
+f(s) = ‖(s_y/c_y, s_z/c_z)‖ for the swing vector s = φ d, so the cone's
+boundary is f = 1 and C ≈ φ_max - φ near it; with n = (0, d), m = a × n
+(parent frame), ṡ = (ω·n) d + (φ/sin φ)(ω·m) d⊥ + φ θ̇ d⊥. Beyond a swing of
+``TWIST_LIMIT_MAX_SWING`` the twist row is dropped (``twist_defined``
+false; its axis, kept for a stored impulse and the tree's factorisation, is
+then c) and |mid| and φ/sin φ in the swing row are held at their values
+there, so the swing row stays bounded and continuous: both grow without
+bound towards a swing of π, where the twist is undefined.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+
+from .jit import SERIAL_BELOW, kernel, parallel_kernel, prange
+from .vec import add, dot, load3, load4, quat_conj, quat_mul, rotate, scale
+
+HINGE, BALL, FIXED = 0, 1, 2
+#: Beyond this swing (rad) a ball joint's twist limit row is dropped: the twist
+#: rate θ̇ = ω·(a + c)/(1 + cos φ) grows as 1/cos(φ/2) towards a swing of π.
+TWIST_LIMIT_MAX_SWING = 5.0 * math.pi / 6.0
+COS_HALF_TWIST_SWING = math.cos(TWIST_LIMIT_MAX_SWING / 2.0)
+
+
+class JointArrays(NamedTuple):
+    """The joints of a model, read-only (J joints)."""
+
+    kind: np.ndarray  # (J,) int64: HINGE, BALL or FIXED
+    parent: np.ndarray  # (J,) int64 body
+    child: np.ndarray  # (J,) int64 body
+    frame_p: np.ndarray  # (J, 4) joint frame in the parent body
+    frame_c: np.ndarray  # (J, 4) joint frame in the child body
+    anchor_p: np.ndarray  # (J, 3) m, anchor in the parent body
+    anchor_c: np.ndarray  # (J, 3) m, anchor in the child body
+    cone: np.ndarray  # (J, 2) rad, swing cone half-angles about y and z
+
+
+class JointGeometry(NamedTuple):
+    """Every joint's geometry at one set of positions (W worlds, J joints)."""
+
+    fpw: np.ndarray  # (W, J, 4) parent joint frame in the world
+    fcw: np.ndarray  # (W, J, 4) child joint frame in the world
+    ra: np.ndarray  # (W, J, 3) m, parent anchor's lever arm
+    rb: np.ndarray  # (W, J, 3) m, child anchor's lever arm
+    twist: np.ndarray  # (W, J) rad, in [-π, π]
+    phi: np.ndarray  # (W, J) rad, swing angle in [0, π]
+    dy: np.ndarray  # (W, J) swing direction
+    dz: np.ndarray  # (W, J)
+    jt: np.ndarray  # (W, J, 3) twist limit row
+    js: np.ndarray  # (W, J, 3) swing limit row
+    c_swing: np.ndarray  # (W, J) rad, swing limit error (negative beyond the cone)
+    twist_defined: np.ndarray  # (W, J) bool
+
+
+@kernel
+def swing_twist(q):
+    """(twist, φ, d_y, d_z) of a relative rotation q = q_swing ⊗ q_twist with
+    q_twist = (w, x, 0, 0)/‖·‖; the swing quaternion (s_w, 0, s_y, s_z) is
+    kept in the w ≥ 0 hemisphere, so φ = 2 atan2(|s|, s_w) lies in [0, π]."""
+    w, x, y, z = q
+    tn = math.sqrt(w * w + x * x)
+    if tn < 1e-9:
+        tw, tx = 1.0, 0.0
+    else:
+        tw, tx = w / tn, x / tn
+    sw = w * tw + x * tx
+    sy = y * tw - z * tx
+    sz = z * tw + y * tx
+    twist = 2.0 * math.atan2(tx, tw)
+    if twist > math.pi:
+        twist -= 2 * math.pi
+    elif twist < -math.pi:
+        twist += 2 * math.pi
+    if sw < 0:
+        sw, sy, sz = -sw, -sy, -sz
+    s = math.sqrt(sy * sy + sz * sz)
+    phi = 2.0 * math.atan2(s, sw)
+    if s > 1e-12:
+        return twist, phi, sy / s, sz / s
+    return twist, phi, 1.0, 0.0
+
+
+@kernel
+def _geometry_world(J, x, q, out, w):
+    """``JointGeometry`` of world w's joints at positions x (N, 3) and
+    orientations q (N, 4)."""
+    for j in range(J.kind.size):
+        qa, qb = load4(q, J.parent[j]), load4(q, J.child[j])
+        fpw = quat_mul(qa, load4(J.frame_p, j))
+        fcw = quat_mul(qb, load4(J.frame_c, j))
+        ra = rotate(qa, load3(J.anchor_p, j))
+        rb = rotate(qb, load3(J.anchor_c, j))
+        for k in range(4):
+            out.fpw[w, j, k] = fpw[k]
+            out.fcw[w, j, k] = fcw[k]
+        for k in range(3):
+            out.ra[w, j, k] = ra[k]
+            out.rb[w, j, k] = rb[k]
+        twist, phi, dy, dz = swing_twist(quat_mul(quat_conj(fpw), fcw))
+        out.twist[w, j], out.phi[w, j], out.dy[w, j], out.dz[w, j] = twist, phi, dy, dz
+        # Limit rows.
+        ax_p = rotate(fpw, (1.0, 0.0, 0.0))
+        ax_c = rotate(fcw, (1.0, 0.0, 0.0))
+        ball = J.kind[j] == BALL
+        defined = (not ball) or phi <= TWIST_LIMIT_MAX_SWING
+        mid = add(ax_p, ax_c)
+        mid2 = dot(mid, mid)  # |a + c|² = 4 cos²(φ/2)
+        d = max(mid2, 1e-24)
+        mid = ((mid[0] / d) * 2.0, (mid[1] / d) * 2.0, (mid[2] / d) * 2.0)  # |mid| = 1/cos(φ/2)
+        if not defined:
+            mid = scale(0.5 * math.sqrt(mid2) / COS_HALF_TWIST_SWING, mid)
+        jt = (mid if defined else ax_c) if ball else ax_p
+        cy, cz = J.cone[j, 0], J.cone[j, 1]
+        gy, gz = dy / (cy * cy), dz / (cz * cz)
+        f_dir = math.sqrt(gy * dy + gz * dz)  # f(d) = 1/φ_max
+        phi_max = 1.0 / f_dir
+        gy, gz = gy * phi_max, gz * phi_max  # ∇f at s (homogeneous of degree 0)
+        g_n = gy * dy + gz * dz
+        g_m = -gy * dz + gz * dy
+        n = rotate(fpw, (0.0, dy, dz))
+        m = rotate(fpw, (0.0, -dz, dy))
+        phi_r = min(phi, TWIST_LIMIT_MAX_SWING)
+        sin_phi = math.sin(phi_r)
+        ratio = phi_r / sin_phi if sin_phi > 1e-6 else 1.0
+        s = add(add(scale(g_n, n), scale(g_m * ratio, m)), scale(g_m * phi_r, mid))
+        js = scale(-phi_max, s)
+        for k in range(3):
+            out.jt[w, j, k] = jt[k]
+            out.js[w, j, k] = js[k]
+        out.c_swing[w, j] = phi_max * (1.0 - phi * f_dir)
+        out.twist_defined[w, j] = defined
+
+
+@parallel_kernel
+def joint_geometry(J, pos, ori, out):
+    """``JointGeometry`` of every world (``out``: arrays with a leading world axis)."""
+    nw = pos.shape[0]
+    if nw < SERIAL_BELOW:
+        for w in range(nw):
+            _geometry_world(J, pos[w], ori[w], out, w)
+    else:
+        for w in prange(nw):
+            _geometry_world(J, pos[w], ori[w], out, w)
+
+
+def empty_geometry(num_worlds, num_joints) -> JointGeometry:
+    W, n = num_worlds, num_joints
+    return JointGeometry(np.empty((W, n, 4)), np.empty((W, n, 4)), np.empty((W, n, 3)), np.empty((W, n, 3)),
+                         np.empty((W, n)), np.empty((W, n)), np.empty((W, n)), np.empty((W, n)),
+                         np.empty((W, n, 3)), np.empty((W, n, 3)), np.empty((W, n)),
+                         np.empty((W, n), dtype=np.bool_))
