@@ -50,7 +50,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .collision import aabb, overlapping
+from .collision import aabb, collide_rows, overlapping
 from .math3d import quat_rotate_inv
 from .scatter import occurrence_rank
 
@@ -96,28 +96,17 @@ def project_static_contacts(contacts, model, state, depth: float, worlds=None) -
         lo, hi = aabb(model.shape_type, model.shape_params, pos[worlds], quat[worlds])
     # Boxes shrunk by depth / 2 on every side overlap only where the shapes may be that deep.
     over = overlapping(lo, hi, contacts.pair_a[idx], contacts.pair_b[idx], -0.5 * depth)
-    s_idx, w_idx = np.nonzero(over.T)  # sorted by pair, as the kinds' slices want
+    s_idx, w_idx = np.nonzero(over.T)  # sorted by pair, then world
     if worlds is not None:
         w_idx = worlds[w_idx]
     if w_idx.size == 0:
         return None
     p_idx = idx[s_idx]
     a, b = contacts.pair_a[p_idx], contacts.pair_b[p_idx]
-    n_rows = w_idx.size
-    normal = np.empty((n_rows, 3))
-    point = np.empty((n_rows, 4, 3))
-    sep = np.empty((n_rows, 4))
-    valid = np.empty((n_rows, 4), dtype=bool)
-    bounds = np.searchsorted(p_idx, [(k[0], k[1]) for k in contacts.kinds])
-    for (_, _, fn, _), (r0, r1) in zip(contacts.kinds, bounds):
-        if r1 <= r0:
-            continue
-        sl = slice(r0, r1)
-        ra, rb, wa = a[sl], b[sl], w_idx[sl]
-        m = fn(pos[wa, ra][None], quat[wa, ra][None], model.shape_params[ra],
-               pos[wa, rb][None], quat[wa, rb][None], model.shape_params[rb], np.full((1, r1 - r0), np.inf))
-        normal[sl], point[sl], valid[sl] = m.normal[0], m.point[0], m.valid[0]
-        sep[sl] = np.where(m.valid[0], m.separation[0], np.inf)
+    # Exact narrow phase of those rows, every point kept (the margin is unbounded).
+    m = collide_rows(contacts.pair_kind[p_idx], pos[w_idx, a], quat[w_idx, a], model.shape_params[a],
+                     pos[w_idx, b], quat[w_idx, b], model.shape_params[b], np.inf)
+    normal, point, sep, valid = m.normal, m.point, m.separation, m.valid
     excess = -sep.min(axis=1) - depth  # m beyond the allowed depth
     # Not 0: a body moved out to the depth reads it again to a last bit.
     deep = excess > MIN_MOVE

@@ -6,9 +6,11 @@ articulation skip each other unless the scene declares "self_collision"),
 sorted by shape-pair kind, with its combined friction and restitution.
 
 Each step (``begin_step``): world AABBs grown by the distance each body can
-travel in the step (speculative margin, so fast bodies do not tunnel), a
-vectorised overlap test over worlds × pairs, then the narrow phase only on the
-overlapping (world, pair) rows, gathered flat across worlds. The rows are
+travel in the step (speculative margin, so fast bodies do not tunnel), the
+overlap test over the candidate pairs, then the narrow phase only on the
+overlapping pairs, in one compiled kernel call over all worlds
+(:mod:`engine.core.collide.world`); the (world, pair) rows with a valid point
+are gathered flat across worlds, sorted by pair then world. The rows are
 coloured in a few vectorised rounds so that no (world, body) appears twice in
 a colour; each colour is one sweep of the solver (:mod:`engine.contact_solver`).
 
@@ -19,10 +21,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from .collision import MAX_POINTS, aabb, candidate_pairs, overlapping, pair_function
+from .collision import MAX_POINTS, candidate_pairs, is_canonical, kind_code
 from .contact_projection import merged, project_static_contacts
 from .contact_solver import ContactRows
-from .math3d import norm
+from .core.collide import detect, gather_rows
 from .shapes import NONE, PLANE
 
 
@@ -48,18 +50,18 @@ class ContactSet:
         group = np.array([b.collision_group for b in builder.bodies], dtype=np.int64)
         mask = np.array([b.collision_mask for b in builder.bodies], dtype=np.int64)
         pa, pb = candidate_pairs(model.shape_type, model.dynamic, group, mask, excluded)
-        # Sort pairs by shape-pair kind so each kind is one contiguous slice.
+        # Pairs sorted by shape-pair kind: the order of the state's per-pair
+        # arrays and of the rows (sorted by pair, then world).
         kind = model.shape_type[pa] * 8 + model.shape_type[pb]
         order = np.argsort(kind, kind="stable")
         self.pair_a, self.pair_b = pa[order], pb[order]
         kind = kind[order]
         self.num_pairs = self.pair_a.size
-        self.kinds = []
-        for k in np.unique(kind):
-            idx = np.flatnonzero(kind == k)
-            ta, tb = model.shape_type[self.pair_a[idx[0]]], model.shape_type[self.pair_b[idx[0]]]
-            fn, swapped = pair_function(int(ta), int(tb))
-            self.kinds.append((idx[0], idx[-1] + 1, fn, swapped))
+        # The kernels' kind code of each pair (candidate_pairs orients every
+        # pair in canonical order, so no pair needs a swap).
+        types = [(int(model.shape_type[a]), int(model.shape_type[b])) for a, b in zip(self.pair_a, self.pair_b)]
+        assert all(is_canonical(ta, tb) for ta, tb in types)
+        self.pair_kind = np.array([kind_code(ta, tb) for ta, tb in types], dtype=np.int64)
         mats = model.materials
         names = model.body_material
         mu = [mats.friction(names[a], names[b]) for a, b in zip(self.pair_a, self.pair_b)]
@@ -79,6 +81,8 @@ class ContactSet:
         self.static_pair_body = np.where(model.dynamic[self.pair_a], self.pair_a, self.pair_b)[self.static_pairs]
         self.has_constraints = self.num_pairs > 0
         self.bounding_radius = _bounding_radius(model)
+        self._shape_type = np.ascontiguousarray(model.shape_type, dtype=np.int64)
+        self._shape_params = np.ascontiguousarray(model.shape_params, dtype=float)
         self.effect_names = {"contacts"}
         if self.friction_on:
             self.effect_names.add("friction")
@@ -102,55 +106,36 @@ class ContactSet:
     def begin_step(self, model, state, h):
         """Broad phase, narrow phase and row preparation, once per step."""
         s = self.settings
-        dt = s.dt
-        lo, hi = aabb(model.shape_type, model.shape_params, state.position, state.orientation)
-        # Speculative margin: how far a body's surface may move in one step.
-        reach = norm(state.velocity) * dt + norm(state.angular_velocity) * dt * self.bounding_radius
-        lo = lo - reach[..., None]
-        hi = hi + reach[..., None]
-        over = overlapping(lo, hi, self.pair_a, self.pair_b, 0.5 * s.speculative_distance)
-        p_idx, w_idx = np.nonzero(over.T)  # rows sorted by pair, so each kind is one slice
-        state.contact_separation[...] = np.inf
-        if w_idx.size == 0:
-            self.rows = None
-            state.contact_normal_impulse[...] = 0.0
-            state.contact_friction_impulse[...] = 0.0
-            return
-        a, b = self.pair_a[p_idx], self.pair_b[p_idx]
-        pos, quat = state.position, state.orientation
-        # Each pair's own margin (the narrow phase keeps the points within it):
-        # with one margin for all (the largest), a box pair's choice of its 4
-        # points depended on the other worlds' speeds.
-        margin_row = s.speculative_distance + (reach[w_idx, a] + reach[w_idx, b])
-        normal = np.empty((w_idx.size, 3))
-        point = np.empty((w_idx.size, MAX_POINTS, 3))
-        sep = np.empty((w_idx.size, MAX_POINTS))
-        valid = np.empty((w_idx.size, MAX_POINTS), dtype=bool)
-        # Rows are sorted by pair index, so each kind's rows are one slice.
-        bounds = np.searchsorted(p_idx, [(k[0], k[1]) for k in self.kinds])
-        for (start, stop, fn, _), (r0, r1) in zip(self.kinds, bounds):
-            if r1 <= r0:
-                continue
-            sl = slice(r0, r1)
-            ra, rb = a[sl], b[sl]
-            wa = w_idx[sl]
-            m = fn(pos[wa, ra][None], quat[wa, ra][None], model.shape_params[ra],
-                   pos[wa, rb][None], quat[wa, rb][None], model.shape_params[rb], margin_row[sl][None])
-            normal[sl], point[sl], sep[sl], valid[sl] = m.normal[0], m.point[0], m.separation[0], m.valid[0]
-        keep = valid.any(axis=1)
-        w_idx, p_idx, a, b = w_idx[keep], p_idx[keep], a[keep], b[keep]
-        normal, point, sep, valid = normal[keep], point[keep], sep[keep], valid[keep]
-        state.contact_separation[w_idx, p_idx] = np.where(valid, sep, np.inf).min(axis=1)
-        # Warm-start impulses of rows that persist; everything else restarts at 0.
-        lam_n = state.contact_normal_impulse[w_idx, p_idx] * valid
-        lam_t = state.contact_friction_impulse[w_idx, p_idx] * valid[..., None]
+        W, P = state.num_worlds, self.num_pairs
+        normal = np.empty((W * P, 3))  # row w P + p: pair p in world w
+        point = np.empty((W * P, MAX_POINTS, 3))
+        sep = np.empty((W * P, MAX_POINTS))
+        valid = np.empty((W * P, MAX_POINTS), dtype=bool)
+        keep = np.empty((W, P), dtype=bool)
+        # Broad phase (AABBs grown by the speculative reach, overlap over the
+        # candidate pairs) and narrow phase of the overlapping pairs, each with
+        # its own margin: the kernels of engine.core.collide.world.
+        detect(self._shape_type, self._shape_params, self.bounding_radius, self.pair_a, self.pair_b,
+               self.pair_kind, state.position, state.orientation, state.velocity, state.angular_velocity,
+               float(s.dt), float(s.speculative_distance), np.empty((W, model.num_bodies, 7)), np.empty((W, P)),
+               normal, point, sep, valid, keep, state.contact_separation, np.empty((W, 2, 8, 3)))
+        # Rows of the pairs that overlap and have a valid point, sorted by pair
+        # then world, with the warm-start impulses of their valid slots.
+        R = int(np.count_nonzero(keep))
+        w_idx, p_idx = np.empty(R, dtype=np.int64), np.empty(R, dtype=np.int64)
+        normal_r, point_r = np.empty((R, 3)), np.empty((R, MAX_POINTS, 3))
+        sep_r, valid_r = np.empty((R, MAX_POINTS)), np.empty((R, MAX_POINTS), dtype=bool)
+        lam_n, lam_t = np.empty((R, MAX_POINTS)), np.empty((R, MAX_POINTS, 3))
+        gather_rows(keep, normal, point, sep, valid, state.contact_normal_impulse, state.contact_friction_impulse,
+                    w_idx, p_idx, normal_r, point_r, sep_r, valid_r, lam_n, lam_t)
+        # Impulses of rows that persist were taken above; everything else restarts at 0.
         state.contact_normal_impulse[...] = 0.0
         state.contact_friction_impulse[...] = 0.0
-        if w_idx.size == 0:
+        if R == 0:
             self.rows = None
             return
-        self.rows = ContactRows(model, state, self, w_idx, p_idx, a, b, normal, point, sep, valid,
-                                lam_n, lam_t, h)
+        self.rows = ContactRows(model, state, self, w_idx, p_idx, self.pair_a[p_idx], self.pair_b[p_idx],
+                                normal_r, point_r, sep_r, valid_r, lam_n, lam_t, h)
 
     # ---------------------------------------------------------------- solver
     def warm_start(self, model, state):

@@ -5,7 +5,8 @@
 steps a few small scenes that between them reach every kernel on the
 default path and the other integrators (a humanoid on the ground with its
 motors, boxes, spheres and capsules on the ground, springs and universal
-gravitation), for one world and for a batch. The machine code lands in
+gravitation), for one world and for a batch, and calls the numpy-facing
+collision functions for every pair kind. The machine code lands in
 numba's cache (``cache=True``: next to the sources, or under
 ``NUMBA_CACHE_DIR``), so a later process starts stepping at once. CI runs it
 once before the tests.
@@ -50,6 +51,24 @@ def scenes():
     return out
 
 
+def warm_collision():
+    """Compile the kernels behind the numpy-facing collision functions
+    (``engine.collision``: ``collide_rows``, ``aabb``, ``overlapping``), which
+    a step reaches only when a body ends it deep in a static shape (the
+    static contact projection), for every pair kind."""
+    from engine.collision import aabb, collide_rows, overlapping
+    from engine.core.collide import KIND_CODES
+
+    kinds = np.array(sorted(KIND_CODES.values()))
+    n = kinds.size
+    quat = np.tile([1.0, 0.0, 0.0, 0.0], (n, 1))
+    collide_rows(kinds, np.zeros((n, 3)), quat, np.full((n, 3), 0.1), np.full((n, 3), 0.05), quat,
+                 np.full((n, 3), 0.1), np.inf)
+    types = np.arange(5)  # sphere, capsule, box, plane, none
+    lo, hi = aabb(types, np.full((5, 3), 0.1), np.zeros((1, 5, 3)), np.tile([1.0, 0.0, 0.0, 0.0], (1, 5, 1)))
+    overlapping(lo, hi, np.array([3, 0]), np.array([0, 1]), 0.01)
+
+
 def warm(verbose: bool = False) -> float:
     """Step every warm-up scene for one world and a batch; returns seconds."""
     import engine as e
@@ -66,6 +85,9 @@ def warm(verbose: bool = False) -> float:
                 e.step(model, state, control)
         if verbose:
             print(f"warmed {name} in {time.perf_counter() - t0:.1f} s", flush=True)
+    warm_collision()
+    if verbose:
+        print(f"warmed the collision functions in {time.perf_counter() - t0:.1f} s", flush=True)
     return time.perf_counter() - t0
 
 

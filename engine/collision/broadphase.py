@@ -2,16 +2,18 @@
 
 ``candidate_pairs`` runs once when a model is compiled and lists every pair
 that may ever collide; ``aabb`` and ``overlapping`` then cull that fixed list
-each step with world-aligned bounding boxes, vectorised over worlds and pairs.
-Units: metres.
+each step with world-aligned bounding boxes. Those two are numpy-facing
+wrappers of the kernels in :mod:`engine.core.collide.broadphase` (which the
+step's detection, :mod:`engine.core.collide.world`, calls directly). Units:
+metres.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from ..math3d import quat_to_matrix
-from ..shapes import BOX, CAPSULE, NONE, PLANE, SPHERE
+from ..core.collide.broadphase import bounds_rows, overlap_rows
+from ..shapes import NONE, PLANE
 from .narrowphase import TYPE_ORDER
 
 
@@ -67,31 +69,26 @@ def aabb(shape_type, params, pos, quat):
     are unbounded (±inf); bodies without a shape get an empty box
     (lo = +inf, hi = -inf) that overlaps nothing.
     """
-    shape_type = np.asarray(shape_type)
-    params = np.asarray(params, dtype=float)
-    kind = shape_type[:, None]
-    r = params[:, 0:1]
-    half = np.where(kind == SPHERE, np.broadcast_to(r, pos.shape), 0.0)
-    turned = (kind == CAPSULE) | (kind == BOX)
-    if turned.any():  # extents that turn with the body (spheres and planes have none)
-        m = np.abs(quat_to_matrix(quat))  # (W, N, 3, 3); columns are the body axes
-        capsule = r + params[:, 1:2] * m[..., :, 2]
-        box = params[:, 0:1] * m[..., :, 0] + params[:, 1:2] * m[..., :, 1] + params[:, 2:3] * m[..., :, 2]
-        half = np.where(kind == CAPSULE, capsule, np.where(kind == BOX, box, half))
-    lo = pos - half
-    hi = pos + half
-    lo = np.where(kind == PLANE, -np.inf, np.where(kind == NONE, np.inf, lo))
-    hi = np.where(kind == PLANE, np.inf, np.where(kind == NONE, -np.inf, hi))
-    return lo, hi
+    pos = np.asarray(pos, dtype=float)
+    lead = pos.shape[:-1]
+    kind = np.ascontiguousarray(np.broadcast_to(np.asarray(shape_type, dtype=np.int64), lead)).reshape(-1)
+    rows = [np.ascontiguousarray(np.broadcast_to(np.asarray(x, dtype=float), lead + (n,))).reshape(-1, n)
+            for x, n in ((params, 3), (pos, 3), (quat, 4))]
+    lo = np.empty((kind.size, 3))
+    hi = np.empty((kind.size, 3))
+    bounds_rows(kind, *rows, lo, hi)
+    return lo.reshape(lead + (3,)), hi.reshape(lead + (3,))
 
 
 def overlapping(lo, hi, pairs_a, pairs_b, margin):
     """(W, P) bool: the boxes of pairs_a and pairs_b, each grown by ``margin``
-    metres on every side, overlap."""
-    la, ha = lo[:, pairs_a], hi[:, pairs_a]
-    lb, hb = lo[:, pairs_b], hi[:, pairs_b]
-    m2 = 2.0 * margin
-    ok = (la[..., 0] <= hb[..., 0] + m2) & (lb[..., 0] <= ha[..., 0] + m2)
-    ok &= (la[..., 1] <= hb[..., 1] + m2) & (lb[..., 1] <= ha[..., 1] + m2)
-    ok &= (la[..., 2] <= hb[..., 2] + m2) & (lb[..., 2] <= ha[..., 2] + m2)
-    return ok
+    metres on every side (a number, or one per (W, P)), overlap."""
+    lo = np.ascontiguousarray(lo, dtype=float)
+    hi = np.ascontiguousarray(hi, dtype=float)
+    pairs_a = np.ascontiguousarray(pairs_a, dtype=np.int64)
+    pairs_b = np.ascontiguousarray(pairs_b, dtype=np.int64)
+    shape = (lo.shape[0], pairs_a.size)
+    grow = np.ascontiguousarray(np.broadcast_to(2.0 * np.asarray(margin, dtype=float), shape))
+    out = np.empty(shape, dtype=bool)
+    overlap_rows(lo, hi, pairs_a, pairs_b, grow, out)
+    return out

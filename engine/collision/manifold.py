@@ -1,7 +1,8 @@
 """The contact manifold returned by every narrow-phase pair function.
 
 Shapes: W worlds, P pairs of one shape combination, up to ``MAX_POINTS``
-contact points per pair. Units: metres.
+contact points per pair. Units: metres. The kernels build a manifold as a
+tuple (:mod:`engine.core.collide.manifold`); this is its numpy form.
 """
 
 from __future__ import annotations
@@ -10,11 +11,9 @@ from typing import NamedTuple
 
 import numpy as np
 
-#: Contact points per pair (a box face resting on a face needs four).
-MAX_POINTS = 4
+from ..core.collide.manifold import INVALID_SEPARATION, MAX_POINTS
 
-#: Separation stored in slots that hold no contact point.
-INVALID_SEPARATION = np.inf
+__all__ = ["INVALID_SEPARATION", "MAX_POINTS", "Manifold"]
 
 
 class Manifold(NamedTuple):
@@ -45,39 +44,3 @@ class Manifold(NamedTuple):
     def count(self) -> np.ndarray:
         """(W, P) number of valid points."""
         return self.valid.sum(axis=-1)
-
-
-def assemble(normal, points, separation, exists, margin) -> Manifold:
-    """Pad K <= 4 candidate points to a :class:`Manifold`.
-
-    normal (..., 3); points (..., K, 3); separation (..., K); exists (..., K)
-    bool or None (all exist). A point is valid when it exists, its separation
-    is finite and below ``margin`` (m: a number, or one per pair, shaped as
-    the leading axes).
-    """
-    k = separation.shape[-1]
-    lead = np.broadcast_shapes(normal.shape[:-1], points.shape[:-2], separation.shape[:-1])
-    normal = np.broadcast_to(normal, lead + (3,))
-    points = np.broadcast_to(points, lead + (k, 3))
-    separation = np.broadcast_to(separation, lead + (k,))
-    valid = (separation < np.asarray(margin)[..., None]) & np.isfinite(separation)
-    if exists is not None:
-        valid &= np.broadcast_to(exists, lead + (k,))
-    point = np.zeros(lead + (MAX_POINTS, 3))
-    point[..., :k, :] = np.where(np.isfinite(points), points, 0.0)
-    sep = np.full(lead + (MAX_POINTS,), INVALID_SEPARATION)
-    sep[..., :k] = np.where(valid, separation, INVALID_SEPARATION)
-    val = np.zeros(lead + (MAX_POINTS,), dtype=bool)
-    val[..., :k] = valid
-    return Manifold(np.ascontiguousarray(normal, dtype=float), point, sep, val)
-
-
-def select(cond: np.ndarray, if_true: Manifold, if_false: Manifold) -> Manifold:
-    """Per pair, the manifold ``if_true`` where ``cond`` (..., ) holds, else ``if_false``."""
-    c3 = cond[..., None]
-    return Manifold(
-        np.where(c3, if_true.normal, if_false.normal),
-        np.where(c3[..., None], if_true.point, if_false.point),
-        np.where(c3, if_true.separation, if_false.separation),
-        np.where(c3, if_true.valid, if_false.valid),
-    )

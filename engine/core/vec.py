@@ -146,3 +146,44 @@ def inv_inertia_apply(q, inv_inertia_body, v):
     """World-frame I⁻¹ v = R (I_b⁻¹ ⊙ Rᵀ v) of a body with principal inverse
     moments ``inv_inertia_body`` (1/(kg·m²)) turned by q."""
     return rotate(q, mul(inv_inertia_body, rotate_inv(q, v)))
+
+
+@kernel
+def pick3(a, i):
+    """Component ``i`` (0, 1 or 2, known only at run time) of a vector."""
+    if i == 0:
+        return a[0]
+    if i == 1:
+        return a[1]
+    return a[2]
+
+
+@kernel
+def abs3(a):
+    """Component-wise |a|."""
+    return (abs(a[0]), abs(a[1]), abs(a[2]))
+
+
+@kernel
+def quat_to_matrix(q):
+    """R(q) of a unit quaternion as its three columns (the body's x, y, z axes
+    in the world frame), each a vector: a 3x3 matrix as a tuple of columns.
+
+    The entries are those of :func:`engine.math3d.quat_to_matrix`, summed in
+    the same order: 1 - 2 (y² + z²) on the diagonal, 2 (xy ± wz) off it.
+    """
+    w, x, y, z = q[0], q[1], q[2], q[3]
+    c0 = (1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y + w * z), 2.0 * (x * z - w * y))
+    c1 = (2.0 * (x * y - w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z + w * x))
+    c2 = (2.0 * (x * z + w * y), 2.0 * (y * z - w * x), 1.0 - 2.0 * (x * x + y * y))
+    return (c0, c1, c2)
+
+
+@kernel
+def column(m, i):
+    """Column ``i`` (known only at run time) of a matrix given by its columns."""
+    if i == 0:
+        return m[0]
+    if i == 1:
+        return m[1]
+    return m[2]

@@ -13,6 +13,7 @@ import math
 import numpy as np
 import pytest
 
+import engine as e
 from engine.collision import (
     INVALID_SEPARATION,
     PAIR_FUNCTIONS,
@@ -22,6 +23,7 @@ from engine.collision import (
     capsule_box,
     capsule_capsule,
     collide,
+    collide_rows,
     overlapping,
     plane_box,
     plane_capsule,
@@ -30,7 +32,9 @@ from engine.collision import (
     sphere_capsule,
     sphere_sphere,
 )
-from engine.math3d import quat_from_axis_angle, quat_mul, quat_normalize, quat_rotate, quat_rotate_inv
+from engine.core.collide import KIND_CODES, detect, detect_serial
+from engine.core.jit import SERIAL_BELOW
+from engine.math3d import norm, quat_from_axis_angle, quat_mul, quat_normalize, quat_rotate, quat_rotate_inv
 from engine.shapes import BOX, CAPSULE, NONE, PLANE, SPHERE
 
 TOL = 1e-9  # m, for configurations computed exactly up to rounding
@@ -588,3 +592,163 @@ def test_aabb_contains_shape_for_random_poses():
         for w in range(2):
             world = pos[w, n] + quat_rotate(np.broadcast_to(quat[w, n], (len(local), 4)), local)
             assert np.all(world >= lo[w, n] - 1e-12) and np.all(world <= hi[w, n] + 1e-12)
+
+
+# ------------------------------------------------- the step's detection kernels
+
+def all_kinds_scene(speculative_distance=0.02):
+    """The ground, two spheres, two capsules, two boxes and a static box, all
+    free to collide: every one of the nine canonical pair kinds appears."""
+    b = e.SceneBuilder(speculative_distance=speculative_distance)
+    b.add_ground()
+    for i, shape in enumerate((e.Sphere(0.2), e.Sphere(0.15), e.Capsule(0.1, 0.3), e.Capsule(0.12, 0.2),
+                               e.Box((0.2, 0.15, 0.1)), e.Box((0.3, 0.2, 0.25)))):
+        b.add_body(f"body{i}", shape, mass=1.0, position=(0.3 * i, 0, 1.0))
+    b.add_body("block", e.Box((0.4, 0.4, 0.2)), static=True, position=(0.5, 0.5, 0.2))
+    return b.build()
+
+
+def random_step_state(model, W, seed):
+    """W worlds with the bodies crowded into 1.2 m around the block, turned
+    and moving at random (many pairs overlap, some deeply)."""
+    rng = np.random.default_rng(seed)
+    s = model.initial_state(W)
+    dyn = np.flatnonzero(model.dynamic)
+    s.position[:, dyn] = rng.uniform((-0.1, -0.1, 0.0), (1.1, 1.1, 0.8), size=(W, dyn.size, 3))
+    s.orientation[:, dyn] = quat_normalize(rng.normal(size=(W, dyn.size, 4)))
+    s.velocity[:, dyn] = rng.normal(0.0, 2.0, size=(W, dyn.size, 3))
+    s.angular_velocity[:, dyn] = rng.normal(0.0, 5.0, size=(W, dyn.size, 3))
+    return s
+
+
+def run_detect(model, state, fn=None):
+    """The step detection's outputs for ``state``: (normal, point, separation,
+    valid) as (W, P, ...) arrays, keep and contact separation (W, P)."""
+    cs = model.contacts
+    W, P = state.num_worlds, cs.num_pairs
+    normal, point = np.empty((W * P, 3)), np.empty((W * P, 4, 3))
+    sep, valid = np.empty((W * P, 4)), np.empty((W * P, 4), dtype=bool)
+    keep, least = np.empty((W, P), dtype=bool), np.empty((W, P))
+    (fn or detect)(cs._shape_type, cs._shape_params, cs.bounding_radius, cs.pair_a, cs.pair_b, cs.pair_kind,
+                   state.position, state.orientation, state.velocity, state.angular_velocity, model.settings.dt,
+                   model.settings.speculative_distance, np.empty((W, model.num_bodies, 7)), np.empty((W, P)),
+                   normal, point, sep, valid, keep, least, np.empty((W, 2, 8, 3)))
+    return (normal.reshape(W, P, 3), point.reshape(W, P, 4, 3), sep.reshape(W, P, 4), valid.reshape(W, P, 4),
+            keep, least)
+
+
+def test_step_detection_covers_every_pair_kind():
+    model = all_kinds_scene()
+    assert set(model.contacts.pair_kind.tolist()) == set(KIND_CODES.values())
+
+
+def test_step_detection_batch_equals_each_world_alone_bit_for_bit():
+    # W = 12 worlds take the parallel path (SERIAL_BELOW = 8), one world the
+    # serial one; the serial loop over all 12 gives the same bits too.
+    model = all_kinds_scene()
+    W = 12
+    assert W >= SERIAL_BELOW
+    state = random_step_state(model, W, seed=5)
+    batched = run_detect(model, state)
+    assert batched[4].any(axis=0).all()  # every pair touches in some world
+    serial = run_detect(model, state, detect_serial)
+    for x, y in zip(batched, serial):
+        np.testing.assert_array_equal(x, y)
+    for w in range(W):
+        alone = run_detect(model, state.select([w]))
+        for name, x, y in zip(("normal", "point", "separation", "valid", "keep", "least"), batched, alone):
+            np.testing.assert_array_equal(x[w:w + 1], y, err_msg=f"world {w}: {name}")
+
+
+def test_step_detection_is_aabb_overlap_then_the_pair_functions():
+    # The step's kernel = the public pieces composed: AABBs grown by the reach
+    # |v| dt + |ω| dt r_bound, overlap with half the speculative distance,
+    # then each overlapping pair's function with margin speculative + both
+    # reaches (exact: the same kernels underneath).
+    model = all_kinds_scene()
+    cs, st = model.contacts, model.settings
+    state = random_step_state(model, 4, seed=6)
+    normal, point, sep, valid, keep, least = run_detect(model, state)
+    lo, hi = aabb(model.shape_type, model.shape_params, state.position, state.orientation)
+    reach = norm(state.velocity) * st.dt + norm(state.angular_velocity) * st.dt * cs.bounding_radius
+    over = overlapping(lo - reach[..., None], hi + reach[..., None], cs.pair_a, cs.pair_b,
+                       0.5 * st.speculative_distance)
+    w, p = np.nonzero(over)
+    a, b = cs.pair_a[p], cs.pair_b[p]
+    m = collide_rows(cs.pair_kind[p], state.position[w, a], state.orientation[w, a], model.shape_params[a],
+                     state.position[w, b], state.orientation[w, b], model.shape_params[b],
+                     st.speculative_distance + (reach[w, a] + reach[w, b]))
+    np.testing.assert_array_equal(normal[w, p], m.normal)
+    np.testing.assert_array_equal(point[w, p], m.point)
+    np.testing.assert_array_equal(sep[w, p], m.separation)
+    np.testing.assert_array_equal(valid[w, p], m.valid)
+    np.testing.assert_array_equal(keep, over & valid.any(axis=-1))
+    np.testing.assert_array_equal(least, np.where(valid, sep, np.inf).min(axis=-1))
+    # Pairs whose boxes do not overlap: no point, normal 0.
+    assert not valid[~over].any() and np.all(sep[~over] == INVALID_SEPARATION) and np.all(normal[~over] == 0)
+    assert over.sum() > 20 and (~over).sum() > 20
+
+
+def test_begin_step_rows_of_resting_shapes():
+    # Sphere r 0.1 m 1 cm deep, box (0.2, 0.15, 0.1) flat 2 mm deep, capsule
+    # (r 0.05 m, half length 0.3 m) lying along x 5 mm deep, all at rest, in
+    # world 0; world 1 has them 1 m up. The detection gives the sphere's one
+    # point, the box's 4 bottom corners and the capsule's 2 ends, each midway
+    # between the surfaces (tolerance 1e-9 m); begin_step keeps the rows with
+    # a valid point, sorted by pair then world.
+    b = e.SceneBuilder()
+    b.add_ground()
+    b.add_body("ball", e.Sphere(0.1), mass=1.0, position=(0.0, 0.0, 0.09))
+    b.add_body("box", e.Box((0.2, 0.15, 0.1)), mass=1.0, position=(1.0, 0.0, 0.098))
+    b.add_body("rod", e.Capsule(0.05, 0.3), mass=1.0, position=(0.0, 2.0, 0.045),
+               orientation=rot((0, 1, 0), math.pi / 2))
+    model = b.build()
+    state = model.initial_state(2)
+    state.position[1, 1:, 2] += 1.0
+    cs = model.contacts
+    normal, point, sep, valid, keep, least = run_detect(model, state)
+    ground = {int(bb): p for p, (aa, bb) in enumerate(zip(cs.pair_a, cs.pair_b)) if aa == 0}
+    ball, box, rod = ground[1], ground[2], ground[3]
+    np.testing.assert_array_equal(np.flatnonzero(keep[0]), sorted((ball, box, rod)))
+    assert not keep[1].any() and np.isinf(least[1]).all()
+    np.testing.assert_allclose(normal[0, [ball, box, rod]], np.tile([0.0, 0.0, 1.0], (3, 1)), atol=TOL)
+    np.testing.assert_array_equal(valid[0, ball], [True, False, False, False])
+    np.testing.assert_allclose(sep[0, ball, 0], -0.01, atol=TOL)
+    np.testing.assert_allclose(point[0, ball, 0], (0.0, 0.0, -0.005), atol=TOL)
+    assert valid[0, box].all()
+    np.testing.assert_allclose(sep[0, box], -0.002, atol=TOL)
+    corners = [(1.0 + sx * 0.2, sy * 0.15, -0.001) for sx in (-1, 1) for sy in (-1, 1)]  # slots in corner order
+    np.testing.assert_allclose(point[0, box], corners, atol=TOL)
+    np.testing.assert_array_equal(valid[0, rod], [True, True, False, False])
+    np.testing.assert_allclose(sep[0, rod, :2], -0.005, atol=TOL)
+    # slot 0 at the capsule's local -z end, which the turn about y puts at -x
+    np.testing.assert_allclose(point[0, rod, :2], [(-0.3, 2.0, -0.0025), (0.3, 2.0, -0.0025)], atol=TOL)
+    np.testing.assert_allclose(least[0, [ball, box, rod]], [-0.01, -0.002, -0.005], atol=TOL)
+    assert np.isinf(np.delete(least[0], [ball, box, rod])).all()  # the pairs of two bodies
+
+    cs.begin_step(model, state, model.settings.dt / model.settings.substeps)
+    p_idx, w_idx = np.nonzero(keep.T)
+    np.testing.assert_array_equal(cs.rows.p, p_idx)
+    np.testing.assert_array_equal(cs.rows.w, w_idx)
+    np.testing.assert_array_equal(cs.rows.valid, valid[w_idx, p_idx])
+    np.testing.assert_array_equal(state.contact_separation, least)
+
+
+def test_speculative_reach_grows_with_speed():
+    # A sphere 5 cm above the ground: no row at rest (speculative distance
+    # 2 cm); falling at 4 m/s it can cover 6.7 cm in the 1/60 s step, so its
+    # margin 2 cm + 6.7 cm takes the 5 cm gap in as a speculative point.
+    b = e.SceneBuilder()
+    b.add_ground()
+    b.add_body("ball", e.Sphere(0.1), mass=1.0, position=(0.0, 0.0, 0.15))
+    model = b.build()
+    state = model.initial_state(2)
+    state.velocity[1, 1] = (0.0, 0.0, -4.0)
+    normal, point, sep, valid, keep, least = run_detect(model, state)
+    np.testing.assert_array_equal(keep[:, 0], [False, True])
+    np.testing.assert_allclose(sep[1, 0, 0], 0.05, atol=TOL)
+    np.testing.assert_allclose(point[1, 0, 0], (0.0, 0.0, 0.025), atol=TOL)
+    model.contacts.begin_step(model, state, model.settings.dt / model.settings.substeps)
+    np.testing.assert_array_equal(model.contacts.rows.w, [1])
+    assert np.isinf(state.contact_separation[0, 0])
+    np.testing.assert_allclose(state.contact_separation[1, 0], 0.05, atol=TOL)
