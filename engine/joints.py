@@ -44,10 +44,10 @@ from .coloring import color_pairs
 from .math3d import (EX, EY, EZ, clamp_norm, cross, quat_rotate_inv, dot, mat_vec, quat_conj, quat_mul,
                      quat_rotate, sym3_solve, quat_to_matrix, world_inv_inertia)
 from .joint_projection import project_joints, undo_unfollowed_moves
-from .scatter import Scatter, scatter_add
 from .core.joints import (BALL, FIXED, HINGE, TWIST_LIMIT_MAX_SWING, JointArrays, JointGeometry,  # noqa: F401
                           empty_geometry, joint_geometry)
-from .soft import implicit_spring_impulse_from, implicit_spring_terms, make_soft, select_softness
+from .core.joints import passive as passive_kernel, warm_start as warm_start_kernel
+from .soft import make_soft, select_softness
 from .state import Event
 
 KINDS = {"hinge": HINGE, "ball": BALL, "fixed": FIXED}
@@ -216,19 +216,9 @@ class JointSet:
             t.loop_touched[t.body_component[self.parent[gs_loop]]] = True
             t.loop_touched[t.body_component[self.child[gs_loop]]] = True
             t.loop_touched[-1] = False
-        # The passive joints colour by colour, so that a colour's are one slice.
+        # The passive joints colour by colour.
         self._passive_order = np.concatenate([c["passive"] for c in self.colors] + [np.zeros(0, dtype=np.int64)]
                                              ).astype(np.int64)
-        start = 0
-        for color in self.colors:
-            n = color["passive"].size
-            color["passive_slice"] = slice(start, start + n)
-            start += n
-            # Axes its springs act on: 1 if all its passive joints are hinges, else 3.
-            color["passive_axes"] = 1 if (self.kind[color["passive"]] == HINGE).all() else 3
-        # Axes a passive joint's spring acts on (hinge: x; ball: x, y, z; fixed: none), 1.0/0.0.
-        kp = self.kind[self._passive_order][:, None]
-        self._passive_use = (((kp == BALL) | (np.arange(3) == 0)) & (kp != FIXED)).astype(float)
         self.effect_names = {"joints"}
         if has_limit.any() or has_swing.any():
             self.effect_names.add("joint_limits")
@@ -240,16 +230,8 @@ class JointSet:
         self._load_before = None  # within a step: |λ| (W, J) before the substep's biased solve (geometric stiffness)
         self._iinv = None
         self._all = np.arange(J)
-        # warm_start: the joints colour by colour, and the order of their parent
-        # (first J) and child (last J) terms in its scatter: per colour, parents then children.
+        # warm_start: the joints colour by colour.
         self._warm_joints = np.concatenate([c["all"] for c in self.colors]).astype(np.int64) if J else self._all
-        self._warm_hinge = self.kind[self._warm_joints] == HINGE
-        sizes = np.cumsum([0] + [len(c["all"]) for c in self.colors])
-        n = len(self._warm_joints)
-        self._warm_order = np.concatenate([np.r_[lo:hi, n + lo:n + hi] for lo, hi in zip(sizes[:-1], sizes[1:])]
-                                          ).astype(np.int64) if n else np.zeros(0, dtype=np.int64)
-        self._warm_scatter = Scatter(np.concatenate((self.parent[self._warm_joints],
-                                                     self.child[self._warm_joints]))[self._warm_order])
         self.arrays = JointArrays(self.kind, self.parent, self.child, self.frame_p, self.frame_c,
                                   self.anchor_p, self.anchor_c, np.ascontiguousarray(self.cone))
         self._frames_on = False  # geometry of _frames_state cached between begin_step and end_step
@@ -382,44 +364,12 @@ class JointSet:
     def passive(self, model, state, h):
         """Muscle tone: an implicit spring-damper on each joint axis towards the
         rest angles, k (N·m/rad) and c (N·m·s/rad), stable for any stiffness.
-        Everything but the velocities (axes, angles, the springs' terms of
-        ``implicit_spring_impulse``) is computed once for every passive joint;
-        the colours then sweep the velocities, each colour a slice."""
+        The joints are swept colour by colour (``engine.core.joints.passive``)."""
         order = self._passive_order
         if not order.size:
             return
-        a_all, b_all, fpw, _, _, _ = self.frames(state, order)
-        ia_all, ib_all = self._iinv.take(a_all, 1), self._iinv.take(b_all, 1)
-        k, c = self.stiffness[order], self.damping[order]
-        err = self.angles(state, order) - self.rest[order]
-        # The short way round to the rest angle (angles lie in [-π, π]): a hinge
-        # beyond π from it would otherwise be pushed the long way and gain
-        # energy. Ball joints rest at zero, so their errors never reach π.
-        if (np.abs(err) > np.pi).any():
-            err = np.where(np.abs(err) > np.pi, err - 2.0 * np.pi * np.round(err / (2.0 * np.pi)), err)
-        use = self._active(state, order)[..., None] * self._passive_use
-        axes, terms = [], []
-        for n, e in enumerate((EX, EY, EZ)):
-            axis = quat_rotate(fpw, e)
-            axes.append(axis)
-            inv_m = dot(axis, mat_vec(ia_all, axis)) + dot(axis, mat_vec(ib_all, axis))
-            terms.append(implicit_spring_terms(k, c, h, err[..., n], inv_m))
-        for color in self.colors:
-            sl = color["passive_slice"]
-            if sl.start == sl.stop:
-                continue
-            a, b = a_all[sl], b_all[sl]
-            ia, ib = ia_all[:, sl], ib_all[:, sl]
-            wa, wb = state.angular_velocity.take(a, 1), state.angular_velocity.take(b, 1)
-            for n in range(color["passive_axes"]):
-                axis = axes[n][:, sl]
-                k_err, ck, den = terms[n]
-                p = implicit_spring_impulse_from(h, (k_err[:, sl], ck[sl], den[:, sl]), dot(wb - wa, axis))
-                p = (p * use[:, sl, n])[..., None] * axis
-                wa = wa - mat_vec(ia, p)
-                wb = wb + mat_vec(ib, p)
-            state.angular_velocity[:, a] = wa
-            state.angular_velocity[:, b] = wb
+        passive_kernel(self.arrays, order, self._iinv, self.geometry(state), self.stiffness, self.damping,
+                       np.ascontiguousarray(self.rest), state.joint_broken, state.angular_velocity, h)
 
     # ----------------------------------------------------------------- solver
     def begin_step(self, model, state, h, touching=None, motor=None):
@@ -576,29 +526,11 @@ class JointSet:
         if self.tree is not None and self.tree.geometric_weight is not None:
             lam = state.joint_linear_impulse
             self._load_before = np.sqrt(dot(lam, lam))  # the load before this substep's solve
-        # The stored impulses move velocities only (no row reads them), so every
-        # joint's are applied in one ordered scatter-add (``scatter_add``), each
-        # body's terms in colour order, parent's before child's within a colour:
-        # the sums of a sweep colour by colour.
-        idx = self._warm_joints
-        a, b, fpw, fcw, ra, rb = self.frames(state, idx)
-        P = state.joint_linear_impulse.take(idx, 1)
-        L = state.joint_angular_impulse.take(idx, 1)
-        hinge = self._warm_hinge
-        # Hinge lock impulses are stored in the parent frame's (y, z) axes.
-        if hinge.any():
-            by = quat_rotate(fpw, EY)
-            bz = quat_rotate(fpw, EZ)
-            lh = L[..., 1:2] * by + L[..., 2:3] * bz
-            L = np.where(hinge[:, None], lh, L)
-        L = L + self._limit_vector(state, idx)
-        inv_m = model.inv_mass
-        ang_a = mat_vec(self._iinv.take(a, 1), cross(ra, P) + L)
-        ang_b = mat_vec(self._iinv.take(b, 1), cross(rb, P) + L)
-        order, scatter = self._warm_order, self._warm_scatter
-        scatter_add(state.velocity, scatter,
-                    np.concatenate((-(P * inv_m[a][:, None]), P * inv_m[b][:, None]), axis=1)[:, order])
-        scatter_add(state.angular_velocity, scatter, np.concatenate((-ang_a, ang_b), axis=1)[:, order])
+        # Joint by joint in colour order: each body's terms in the order of a
+        # sweep colour by colour.
+        warm_start_kernel(self.arrays, self._warm_joints, self._iinv, model.inv_mass, self.geometry(state),
+                          state.joint_linear_impulse, state.joint_angular_impulse, state.joint_limit_impulse,
+                          state.velocity, state.angular_velocity)
 
     def _limit_vector(self, state, idx):
         lam = state.joint_limit_impulse[:, idx]

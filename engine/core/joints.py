@@ -167,3 +167,120 @@ def empty_geometry(num_worlds, num_joints) -> JointGeometry:
                          np.empty((W, n)), np.empty((W, n)), np.empty((W, n)), np.empty((W, n)),
                          np.empty((W, n, 3)), np.empty((W, n, 3)), np.empty((W, n)),
                          np.empty((W, n), dtype=np.bool_))
+
+
+# ------------------------------------------------------------- warm start
+@kernel
+def _mat_vec(m, i, v):
+    """m[i] @ v for a stack of 3x3 matrices."""
+    return (m[i, 0, 0] * v[0] + m[i, 0, 1] * v[1] + m[i, 0, 2] * v[2],
+            m[i, 1, 0] * v[0] + m[i, 1, 1] * v[1] + m[i, 1, 2] * v[2],
+            m[i, 2, 0] * v[0] + m[i, 2, 1] * v[1] + m[i, 2, 2] * v[2])
+
+
+@kernel
+def _add3(a, i, v, sign):
+    a[i, 0] += sign * v[0]
+    a[i, 1] += sign * v[1]
+    a[i, 2] += sign * v[2]
+
+
+@kernel
+def _warm_start_world(J, order, iinv, inv_mass, g, w, lin, ang, lim, vel, angvel):
+    """Apply each joint's stored impulses of world w again: the point impulse
+    P at the anchors, the lock rows' angular impulse (a hinge's in its parent
+    frame's y, z axes) and the limit rows' (λ_lower - λ_upper) J_twist +
+    λ_swing J_swing; joints in ``order`` (colour by colour)."""
+    for k in range(order.size):
+        j = order[k]
+        a, b = J.parent[j], J.child[j]
+        P = load3(lin, j)
+        L = load3(ang, j)
+        if J.kind[j] == HINGE:
+            f = (g.fpw[w, j, 0], g.fpw[w, j, 1], g.fpw[w, j, 2], g.fpw[w, j, 3])
+            by, bz = rotate(f, (0.0, 1.0, 0.0)), rotate(f, (0.0, 0.0, 1.0))
+            L = add(scale(L[1], by), scale(L[2], bz))
+        l0, l1, l2 = lim[j, 0], lim[j, 1], lim[j, 2]
+        if l0 != 0.0 or l1 != 0.0 or l2 != 0.0:
+            jt = (g.jt[w, j, 0], g.jt[w, j, 1], g.jt[w, j, 2])
+            js = (g.js[w, j, 0], g.js[w, j, 1], g.js[w, j, 2])
+            L = add(L, add(scale(l0 - l1, jt), scale(l2, js)))
+        ra = (g.ra[w, j, 0], g.ra[w, j, 1], g.ra[w, j, 2])
+        rb = (g.rb[w, j, 0], g.rb[w, j, 1], g.rb[w, j, 2])
+        ang_a = _mat_vec(iinv, a, add(_cross(ra, P), L))
+        ang_b = _mat_vec(iinv, b, add(_cross(rb, P), L))
+        _add3(vel, a, scale(inv_mass[a], P), -1.0)
+        _add3(angvel, a, ang_a, -1.0)
+        _add3(vel, b, scale(inv_mass[b], P), 1.0)
+        _add3(angvel, b, ang_b, 1.0)
+
+
+@kernel
+def _cross(a, b):
+    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
+
+
+@parallel_kernel
+def warm_start(J, order, iinv, inv_mass, g, lin, ang, lim, vel, angvel):
+    """The joints' warm start of every world (``iinv`` (W, N, 3, 3): the
+    step's world inverse inertias)."""
+    nw = vel.shape[0]
+    if nw < SERIAL_BELOW:
+        for w in range(nw):
+            _warm_start_world(J, order, iinv[w], inv_mass, g, w, lin[w], ang[w], lim[w], vel[w], angvel[w])
+    else:
+        for w in prange(nw):
+            _warm_start_world(J, order, iinv[w], inv_mass, g, w, lin[w], ang[w], lim[w], vel[w], angvel[w])
+
+
+# ---------------------------------------------------------------- passive
+@kernel
+def _passive_world(J, order, iinv, g, w, stiffness, damping, rest, broken, angvel, h):
+    """Muscle tone of world w: an implicit spring-damper on each joint axis
+    towards the rest angles (k N·m/rad, c N·m·s/rad), backward Euler, so
+    stable for any stiffness: with the axis's inverse inertia m⁻¹ = a·I_a⁻¹a
+    + a·I_b⁻¹a, P = -h (k C + (c + h k) Ċ) / (1 + h (c + h k) m⁻¹). A hinge
+    acts about its axis, a ball joint about its frame's three axes (twist,
+    swing y, swing z); joints in ``order`` (colour by colour)."""
+    for k in range(order.size):
+        j = order[k]
+        kind = J.kind[j]
+        if kind == FIXED or broken[j]:
+            continue
+        a, b = J.parent[j], J.child[j]
+        f = (g.fpw[w, j, 0], g.fpw[w, j, 1], g.fpw[w, j, 2], g.fpw[w, j, 3])
+        twist, phi = g.twist[w, j], g.phi[w, j]
+        naxes = 1 if kind == HINGE else 3
+        kj, cj = stiffness[j], damping[j]
+        ck = cj + h * kj
+        for n in range(naxes):
+            if n == 0:
+                axis, angle = rotate(f, (1.0, 0.0, 0.0)), twist
+            elif n == 1:
+                axis, angle = rotate(f, (0.0, 1.0, 0.0)), phi * g.dy[w, j]
+            else:
+                axis, angle = rotate(f, (0.0, 0.0, 1.0)), phi * g.dz[w, j]
+            err = angle - rest[j, n]
+            if abs(err) > math.pi:
+                # The short way round to the rest angle (angles lie in [-π, π]).
+                err = err - 2.0 * math.pi * np.rint(err / (2.0 * math.pi))
+            inv_m = dot(axis, _mat_vec(iinv, a, axis)) + dot(axis, _mat_vec(iinv, b, axis))
+            den = 1.0 + (h * ck) * inv_m
+            wa, wb = load3(angvel, a), load3(angvel, b)
+            rate = dot((wb[0] - wa[0], wb[1] - wa[1], wb[2] - wa[2]), axis)
+            p = -h * (kj * err + ck * rate) / den
+            impulse = scale(p, axis)
+            _add3(angvel, a, _mat_vec(iinv, a, impulse), -1.0)
+            _add3(angvel, b, _mat_vec(iinv, b, impulse), 1.0)
+
+
+@parallel_kernel
+def passive(J, order, iinv, g, stiffness, damping, rest, broken, angvel, h):
+    """The passive joint springs and dampers of every world over a substep of h s."""
+    nw = angvel.shape[0]
+    if nw < SERIAL_BELOW:
+        for w in range(nw):
+            _passive_world(J, order, iinv[w], g, w, stiffness, damping, rest, broken[w], angvel[w], h)
+    else:
+        for w in prange(nw):
+            _passive_world(J, order, iinv[w], g, w, stiffness, damping, rest, broken[w], angvel[w], h)
