@@ -40,7 +40,7 @@ fallen ragdolls (9-30 points, 18 on average) that, with A stored by
 column (below), took the contacts' share of a step from 210 to 145 ms.
 Memory per world: C x (6 x bodies
 + 7 + C) floats for Z, J, A and the per-column arrays; while they are built,
-the tree's substitution holds about five more COLUMN_BLOCK x 6 x bodies and
+the tree's substitution holds one COLUMN_BLOCK x 6 block per tree node and
 A's build about four C x COLUMN_BLOCK. A ragdoll lying
 on the ground has up to about 31 valid points (C = 93) against 14 rows of 4
 point slots (168 columns when every slot had its columns).
@@ -71,11 +71,12 @@ def _coulomb_scale(t1, t2, limit):
 
 
 def _first(factors, n, W):
-    """The tree's factors (``_TreeSolver._factor``) of the first n of W worlds (views)."""
+    """The tree's factors (``_TreeSolver._factor``: D⁻¹ and L, each (W,
+    nodes, 6, 6)) of the first n of W worlds (views)."""
     if n == W:
         return factors
     Dinv, L = factors
-    return [D[:n] for D in Dinv], [None if Lg is None else Lg[:n] for Lg in L]
+    return Dinv[:n], L[:n]
 
 
 def _max0(x: float) -> float:
@@ -144,8 +145,8 @@ class ArticulatedContacts:
         response = np.concatenate(  # U_i = M⁻¹ J_iᵀ on the column's body (points, direction, 6)
             (J[..., :3] * model.inv_mass[b3][..., None], mat_vec(iinv[w3, b3], J[..., 3:])), axis=-1)
         # Z = U - M⁻¹ J_tᵀ K⁻¹ J_t U, through the tree's factors at these
-        # positions, COLUMN_BLOCK columns at a time: the substitution's
-        # temporaries are several times the size of the columns it is given.
+        # positions, COLUMN_BLOCK columns at a time: the substitution's and
+        # the products' temporaries are a few times the size of the columns.
         # Z is stored by columns, each contiguous: Z_columns[w, i] = Z[w, :, i].
         a, b, _, _, _, _, _, Ja, Jb, mask = tree.blocks(js, state, tree)
         Ja, Jb, mask = Ja[self._batch], Jb[self._batch], mask[self._batch]

@@ -6,12 +6,10 @@ so its block LDLᵀ factorisation in leaves-first order has no fill-in and gives
 x = -z = (J M⁻¹ Jᵀ)⁻¹ r exactly in time linear in the number of bodies. Each
 joint node has 6 rows: 3 point rows and 3 angular lock rows (hinge: y, z of the
 parent frame; fixed: world x, y, z; ball: none); unused rows get -1 on the
-diagonal and no coupling, so they solve to 0. Nodes of one (depth, kind) are one
-vectorised group. The 6x6 products and inverses are np.matmul (BLAS) and
-np.linalg.inv (LAPACK) per matrix: one call per group instead of one per inner
-index (measured 1.2-1.3x the whole ragdoll step at W = 1..1024), and still one
-library call per 6x6 matrix, so the result of a world never depends on the
-number of worlds.
+diagonal and no coupling, so they solve to 0. The factorisation and the
+substitution are numba kernels for one world (:mod:`engine.core.tree`), run
+once per world over the static layout compiled here (``_TreeSolver.layout``):
+the factors are arrays over all nodes, D⁻¹ and L (W, nodes, 6, 6).
 
 ``JointSet`` (:mod:`engine.joints`) builds a ``_TreeSolver`` for the equality
 rows of its articulations and, with ``joint_loops="exact"``, the ``_Rows`` of
@@ -22,6 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .core import tree as tree_kernels
 from .joints import BALL, FIXED, HINGE
 from .math3d import (EX, EY, EZ, clamp_norm, cross, dot, inverse_or_nan, mat_vec, quat_conj, quat_mul, quat_rotate,
                      sym3_inverse, world_inv_inertia)
@@ -73,7 +72,7 @@ def _in_limit_slots(on, lrows, lr, Ja, Jb, mask, r=None):
 
 
 class _JointTree:
-    """Static layout of the joint tree: nodes, their parents and depth groups."""
+    """Static layout of the joint tree: nodes, their parents and the leaves-first order."""
 
     def __init__(self, parent, child, dynamic):
         J = len(parent)
@@ -163,49 +162,11 @@ class _JointTree:
             self.a_is_parent[k] = p >= 0 and bodies[p] == parent[j]
         self.n_nodes, self.n_bodies = n, nb
         self.node_parent = node_parent
-        groups = []
-        for d in range(int(depth.max()) + 1 if n else 0):
-            for is_body in (True, False):
-                ids = np.flatnonzero((depth == d) & ((np.arange(n) < nb) == is_body))
-                if ids.size:
-                    groups.append((ids, node_parent[ids], Scatter(node_parent[ids])))
-        self.groups = groups[::-1]  # deepest first
+        # Leaves first: deepest nodes first, each depth in node order, so every
+        # node comes after all its children (which are one level deeper) and a
+        # parent gathers its children's terms in node order.
+        self.order = np.lexsort((np.arange(n), -depth)).astype(np.int64)
         self.body_pos = body_node
-
-
-class _Group:
-    """One (depth, kind) group of tree nodes: body nodes (ids < nb) with their
-    parent joints pj, or joint nodes jids with their parent body nodes par.
-
-    Pivots with a closed form are picked out once: ``simple`` (positions in
-    the group) are the leaf bodies (no child joint: the pivot is the body's
-    own metric) of a body group, the ball joints (no lock rows: one 3x3 block)
-    of a joint group; ``full`` are the others."""
-
-    def __init__(self, ids, par, scatter, nb, simple):
-        self.ids, self.par, self.scatter = ids, par, scatter
-        self.body = bool(ids[0] < nb)
-        self.has_parent = bool(par[0] >= 0)
-        self.pj = par - nb  # body groups: parent joint of each body
-        self.jids = ids - nb  # joint groups: tree joint index
-        self.simple = np.flatnonzero(simple)
-        self.full = np.flatnonzero(~simple)
-        # Node indices of each part: tree bodies (body groups) or tree joints.
-        nodes = self.ids if self.body else self.jids
-        self.simple_nodes, self.full_nodes = nodes[self.simple], nodes[self.full]
-
-    def pivots(self, use_simple, simple, full):
-        """D⁻¹ (W, n, 6, 6) of the group: ``simple(nodes)`` for its
-        closed-form pivots when ``use_simple``, ``full(nodes)`` for the rest."""
-        if not use_simple or not self.simple.size:
-            return full(self.ids if self.body else self.jids)
-        if not self.full.size:
-            return simple(self.simple_nodes)
-        part = simple(self.simple_nodes)
-        Di = np.empty((part.shape[0], self.ids.size, 6, 6))
-        Di[:, self.simple] = part
-        Di[:, self.full] = full(self.full_nodes)
-        return Di
 
 
 class _Rows:
@@ -255,9 +216,11 @@ class _TreeSolver(_Rows):
         self.num_bodies = model.num_bodies
         has_child = np.zeros(t.n_nodes, dtype=bool)
         has_child[t.node_parent[t.node_parent >= 0]] = True
-        ball = self.kind == BALL
-        self.groups = [_Group(ids, par, scatter, nb, ~has_child[ids] if ids[0] < nb else ball[ids - nb])
-                       for ids, par, scatter in t.groups]
+        # The static tree for the factorisation kernels (engine.core.tree).
+        self.layout = tree_kernels.TreeLayout(
+            order=t.order, parent=t.node_parent.astype(np.int64), n_bodies=int(nb),
+            leaf=np.ascontiguousarray(~has_child[:nb]), ball=np.ascontiguousarray(self.kind == BALL),
+            child_is_b=np.ascontiguousarray(self.child_is_b, dtype=bool))
         self.limits = False
         self.exact_loop = None  # (articulations + 1,) bool: closed by loops solved with the tree (JointSet)
         self.active_set_passes = settings.joint_active_set_passes
@@ -644,8 +607,9 @@ class _TreeSolver(_Rows):
         ``inv_metric_times(v, worlds)`` takes the chunk's world slice."""
         W, nl = loop_rows[5].shape[:2]
         # (W, n, 6, m) float64 blocks alive at once: G, V and a product per
-        # body, the substitution's six per tree joint, four per loop joint
-        # (an over-estimate of the measured peak: 11 MB a world for the grid).
+        # body, at most six per tree joint for the substitution (its kernel
+        # holds one per tree node and the result per tree joint), four per
+        # loop joint: an over-estimate of the peak.
         per_world = 8 * 6 * rows.used_rows.size * (3 * self.num_bodies + 6 * tree_rows[5].shape[1] + 4 * nl)
         chunk = max(1, LOOP_SOLVE_BYTES // max(per_world, 1))
         if W <= chunk:
@@ -726,63 +690,30 @@ class _TreeSolver(_Rows):
     def _factor(self, Ja, Jb, mask, M=None, ball_rows=True, M_inv=None):
         """Block LDLᵀ factors of [M Jᵀ; J 0] in leaves-first order (M: the
         bodies' (W, tree bodies, 6, 6) metric, default their mass matrices;
-        ``M_inv``, if known, its inverse).
+        ``M_inv``, if known, its inverse), by the kernels of
+        :mod:`engine.core.tree`, one world at a time.
 
         A body node's pivot is D_b = M_b - Σ_children J_pᵀ D_j⁻¹ J_p; a joint
         node's is D_j = diag(mask - 1) - J_c D_c⁻¹ J_cᵀ (its one child body c).
         Closed forms: a leaf body's pivot is M_b, whose inverse is M_inv's
         (with the mass metric blockdiag(I/m, I_w⁻¹)); a ball joint's (``ball_rows``: its
         angular rows 3-5 are empty, as ``blocks`` builds them) is
-        blockdiag(D_j[:3, :3], -I), one 3x3 inverse by the adjugate (10 times
-        faster than LAPACK's from a thousand matrices, 4 times slower for one,
-        about 12 µs more a call; it reads the upper triangle of a block
-        symmetric to rounding, and the block is negative definite, never
-        singular: -I for a broken joint). Returns D⁻¹ and
-        L = D⁻¹ H_parent of each group."""
-        nb = self.t.n_bodies
-        cb = self.child_is_b[:, None, None]
-        Jc = np.where(cb, Jb, Ja)  # block of the joint's tree child body
-        Jp = np.where(cb, Ja, Jb)  # block of its tree parent body (unused for roots)
-        W = mask.shape[0]
+        blockdiag(D_j[:3, :3], -I), one 3x3 inverse by the adjugate (it reads
+        the upper triangle of a block symmetric to rounding, and the block is
+        negative definite, never singular: -I for a broken joint). Returns
+        D⁻¹ and L = D⁻¹ H_parent of every node, each (W, nodes, 6, 6), nodes
+        numbered tree bodies first, then tree joints (L of a root is 0)."""
         metric, leaf_inv = (self.M, self.M_inv) if M is None else (M, M_inv)
-        acc_b = np.zeros((W, nb, 6, 6))
-        acc_j = np.empty(Jc.shape)  # J_c D_c⁻¹ J_cᵀ of each joint's child body
-        Dinv, L = [], []
-        for g in self.groups:
-            if g.body:
-                Di = g.pivots(leaf_inv is not None,
-                              lambda ids: leaf_inv.take(ids, 1),
-                              lambda ids: inverse_or_nan(metric.take(ids, 1) - acc_b.take(ids, 1)))
-                if g.has_parent:
-                    Jg = Jc.take(g.pj, 1)
-                    Lg = _mm(Di, np.swapaxes(Jg, -1, -2))
-                    acc_j[:, g.pj] = _mm(Jg, Lg)
-            else:
-                Di = g.pivots(ball_rows, lambda j: self._ball_pivot_inverse(acc_j.take(j, 1), mask.take(j, 1)),
-                              lambda j: inverse_or_nan(self._joint_pivot(acc_j.take(j, 1), mask.take(j, 1))))
-                if g.has_parent:
-                    Jg = Jp.take(g.jids, 1)
-                    Lg = _mm(Di, Jg)
-                    scatter_add(acc_b, g.scatter, _mtm(Jg, Lg))
-            Dinv.append(Di)
-            L.append(Lg if g.has_parent else None)
+        W, n = mask.shape[0], self.t.n_nodes
+        Dinv = np.empty((W, n, 6, 6))
+        L = np.empty((W, n, 6, 6))
+        metric = np.ascontiguousarray(metric, dtype=np.float64)
+        tree_kernels.factor_batch(self.layout, np.ascontiguousarray(Ja, dtype=np.float64),
+                                  np.ascontiguousarray(Jb, dtype=np.float64),
+                                  np.ascontiguousarray(mask, dtype=np.float64), metric,
+                                  metric if leaf_inv is None else np.ascontiguousarray(leaf_inv, dtype=np.float64),
+                                  leaf_inv is not None, bool(ball_rows), Dinv, L)
         return Dinv, L
-
-    @classmethod
-    def _ball_pivot_inverse(cls, acc, mask):
-        """D_j⁻¹ = blockdiag(D_j[:3, :3]⁻¹, -I) of ball joints (angular rows empty)."""
-        Di = np.zeros(acc.shape)
-        Di[..., :3, :3] = sym3_inverse(cls._joint_pivot(acc[..., :3, :3], mask[..., :3]))
-        Di[..., 3 + _DIAG3, 3 + _DIAG3] = -1.0
-        return Di
-
-    @staticmethod
-    def _joint_pivot(acc, mask):
-        """D_j = diag(mask - 1) - acc for (W, n, k, k) blocks acc and (W, n, k) masks."""
-        D = np.negative(acc)
-        k = acc.shape[-1]
-        D.reshape(D.shape[:-2] + (k * k,))[..., ::k + 1] += mask - 1.0
-        return D
 
     def _substitute(self, factors, r):
         """Forward and back substitution with the factors of ``_factor``:
@@ -792,31 +723,6 @@ class _TreeSolver(_Rows):
     def _substitute_columns(self, factors, R):
         """The same for k right-hand sides at once, R (W, nj, 6, k)."""
         Dinv, L = factors
-        nb = self.t.n_bodies
-        W, k = R.shape[0], R.shape[-1]
-        acc_b = np.zeros((W, nb, 6, k))
-        acc_j = np.empty(R.shape)
-        bp = []
-        for g, Lg in zip(self.groups, L):
-            if g.body:
-                b = -acc_b.take(g.ids, 1)
-                if g.has_parent:
-                    acc_j[:, g.pj] = _mtm(Lg, b)
-            else:
-                b = R.take(g.jids, 1) - acc_j.take(g.jids, 1)
-                if g.has_parent:
-                    scatter_add(acc_b, g.scatter, _mtm(Lg, b))
-            bp.append(b)
-        x_b = np.empty((W, nb, 6, k))
-        x_j = np.empty(R.shape)
-        for g, Di, Lg, b in zip(self.groups[::-1], Dinv[::-1], L[::-1], bp[::-1]):
-            xi = _mm(Di, b)
-            if g.body:
-                if g.has_parent:
-                    xi = xi - _mm(Lg, x_j.take(g.pj, 1))
-                x_b[:, g.ids] = xi
-            else:
-                if g.has_parent:
-                    xi = xi - _mm(Lg, x_b.take(g.par, 1))
-                x_j[:, g.jids] = xi
-        return -x_j  # (J M⁻¹ Jᵀ)⁻¹ R per joint
+        X = np.empty(R.shape)
+        tree_kernels.substitute_batch(self.layout, Dinv, L, np.ascontiguousarray(R, dtype=np.float64), X)
+        return X  # (J M⁻¹ Jᵀ)⁻¹ R per joint

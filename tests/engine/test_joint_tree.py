@@ -74,3 +74,80 @@ def test_limit_rows_end_each_tree_solve_complementary(monkeypatch, schur):
     assert worst["closing"] < 1e-5, worst  # rad/s (the active set adds rows closing faster than 1e-6)
     assert worst["held"] < 1e-8, worst
     assert worst["pulling"] <= 0.0, worst
+
+
+def _humanoid_at_random_positions(W, seed):
+    """A humanoid (ground, motors) with W worlds of random body positions
+    (±0.3 m) and orientations, its joint set begun for a substep: the tree's
+    metric M at those orientations and the Jacobian blocks of those frames."""
+    b = e.SceneBuilder()
+    b.add_ground()
+    add_humanoid(b)
+    model = b.build()
+    state = model.initial_state(W)
+    rng = np.random.default_rng(seed)
+    state.position[...] += rng.uniform(-0.3, 0.3, state.position.shape)
+    q = rng.normal(size=state.orientation.shape)
+    state.orientation[...] = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    js = model.joints
+    js.begin_step(model, state, model.settings.dt)
+    return model, state, js, js.tree
+
+
+def _dense_system(model, js, tree, Ja, Jb, mask, w):
+    """K = J M⁻¹ Jᵀ of world w over its used rows (dense), and which of the 6 nj rows those are."""
+    nj, N = tree.joints.size, model.num_bodies
+    J = np.zeros((6 * nj, 6 * N))
+    for k, (a, b) in enumerate(zip(js.parent[tree.joints], js.child[tree.joints])):
+        for body, block in ((a, Ja), (b, Jb)):
+            if model.dynamic[body]:
+                J[6 * k:6 * k + 6, 6 * body:6 * body + 6] += block[w, k]
+    M_inv = np.zeros((6 * N, 6 * N))
+    for k, body in enumerate(tree.t.bodies):
+        M_inv[6 * body:6 * body + 6, 6 * body:6 * body + 6] = np.linalg.inv(tree.M[w, k])
+    used = mask[w].reshape(-1) > 0
+    return (J @ M_inv @ J.T)[np.ix_(used, used)], used
+
+
+@pytest.mark.parametrize("ball_rows, leaf_inverse", [(True, True), (False, True), (True, False)],
+                         ids=["closed forms", "no ball closed form", "no leaf closed form"])
+def test_tree_kernels_solve_the_joint_system_to_rounding(ball_rows, leaf_inverse):
+    """The factorisation and substitution kernels (engine.core.tree) solve
+    (J M⁻¹ Jᵀ) X = R on the humanoid's tree at random positions, for several
+    right-hand sides at once: the residual is rounding, each row's within a
+    few thousand ulps of |K| |x| + |r| (the tree's pivots carry the system's
+    condition), and the unused rows (ball joints' angular rows) solve to 0."""
+    W = 3
+    model, state, js, tree = _humanoid_at_random_positions(W, seed=5)
+    *_, Ja, Jb, mask = tree.blocks(js, state, tree)
+    rng = np.random.default_rng(6)
+    R = rng.normal(size=mask.shape + (4,)) * mask[..., None]
+    factors = tree._factor(Ja, Jb, mask, tree.M, ball_rows, tree.M_inv if leaf_inverse else None)
+    X = tree._substitute_columns(factors, R)
+    assert np.isfinite(X).all()
+    assert (X[mask == 0] == 0).all()
+    for w in range(W):
+        K, used = _dense_system(model, js, tree, Ja, Jb, mask, w)
+        x, r = X[w].reshape(-1, 4)[used], R[w].reshape(-1, 4)[used]
+        bound = 4096 * np.finfo(float).eps * (np.abs(K) @ np.abs(x) + np.abs(r))
+        assert (np.abs(K @ x - r) <= bound).all(), w
+        # One right-hand side alone: the same operations as its column among several.
+        assert np.array_equal(tree._substitute(factors, R[..., 0])[w].reshape(-1)[used], x[:, 0])
+
+
+def test_tree_kernels_give_each_world_the_bits_it_gets_alone():
+    """W worlds factored and substituted together (the batched kernels' prange
+    path from SERIAL_BELOW worlds) give each world the same D⁻¹, L and
+    solutions, bit for bit, as factoring that world alone."""
+    W = 12
+    model, state, js, tree = _humanoid_at_random_positions(W, seed=7)
+    *_, Ja, Jb, mask = tree.blocks(js, state, tree)
+    R = np.random.default_rng(8).normal(size=mask.shape + (3,)) * mask[..., None]
+    for ball_rows in (True, False):
+        Dinv, L = tree._factor(Ja, Jb, mask, tree.M, ball_rows, tree.M_inv)
+        X = tree._substitute_columns((Dinv, L), R)
+        for w in range(W):
+            one = slice(w, w + 1)
+            Dinv1, L1 = tree._factor(Ja[one], Jb[one], mask[one], tree.M[one], ball_rows, tree.M_inv[one])
+            assert np.array_equal(Dinv1[0], Dinv[w]) and np.array_equal(L1[0], L[w]), (ball_rows, w)
+            assert np.array_equal(tree._substitute_columns((Dinv1, L1), R[one])[0], X[w]), (ball_rows, w)

@@ -1,0 +1,326 @@
+"""The joint tree's block LDLᵀ factorisation and substitution: kernels for one
+world and their batched entry points (Baraff 1996, "Linear-time dynamics
+using Lagrange multipliers").
+
+The equality rows of an articulation's joints, J (6 rows a joint: 3 point
+rows, 3 angular lock rows, the unused ones masked) and the bodies' metric M
+(6x6 a body: mass, world inertia) give the system
+
+    [M  Jᵀ] [y]   [0]
+    [J  0 ] [z] = [r],      z = -(J M⁻¹ Jᵀ)⁻¹ r.
+
+Its nodes, bodies and joints, form a tree (body - joint - body ...), and a
+block of the matrix is non-zero only on the diagonal and between a joint and
+the bodies it joins. Eliminating the nodes leaves first (each node after all
+its children) leaves every block's sparsity as it is, no fill-in, so the
+factorisation and the solve take time linear in the number of bodies:
+
+* a body node b's pivot is D_b = M_b - Σ_children J_pᵀ D_j⁻¹ J_p, where J_p
+  is the block of each child joint j on b (b is j's tree parent); a joint
+  node j's pivot is D_j = diag(mask - 1) - J_c D_c⁻¹ J_cᵀ, J_c the block of j
+  on its one child body c (the -1 of an unused row makes it solve to 0, as it
+  has no coupling);
+* each non-root node stores D⁻¹ and L = D⁻¹ H, H its off-diagonal block to its
+  tree parent: a body L_b = D_b⁻¹ J_cᵀ (body velocities x joint rows), a
+  joint L_j = D_j⁻¹ J_p (joint rows x body velocities);
+* the forward substitution takes the nodes leaves first, y_node = rhs_node
+  - Σ_children L_childᵀ y_child (rhs: 0 on bodies, r on joints), the back
+  substitution roots first, x_node = D⁻¹ y_node - L x_parent; on the
+  joints these are z, and the kernels return -z = (J M⁻¹ Jᵀ)⁻¹ r.
+
+Closed forms: a leaf body's pivot is M_b itself, so its inverse is the given
+M⁻¹ block when known; a ball joint's angular rows are empty, so its pivot is
+blockdiag(D[:3, :3], -I) and its inverse one 3x3 symmetric inverse by the
+adjugate. Other pivots are inverted by Gauss-Jordan elimination with partial
+pivoting; a singular one (a world already diverging) gives NaN, so that world
+turns non-finite and is reported after the step instead of raising.
+
+Nodes are numbered bodies first (0..nb-1, the tree bodies in order), then
+joints (nb..n-1, the tree joints in order); arrays over nodes are (n, 6, 6),
+over joints (nj, ...). Each batched entry point runs the world kernel once
+per world (a ``prange`` loop from ``SERIAL_BELOW`` worlds), so a world's
+factors and solutions never depend on the batch.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from .jit import SERIAL_BELOW, kernel, parallel_kernel, prange
+
+
+class TreeLayout(NamedTuple):
+    """The static joint tree (n nodes: nb bodies, then nj joints)."""
+
+    order: np.ndarray  # (n,) int64: the nodes leaves first (each after all its children)
+    parent: np.ndarray  # (n,) int64: each node's tree parent node, -1 for a root
+    n_bodies: int  # nb
+    leaf: np.ndarray  # (nb,) bool: body nodes without a child joint (pivot M_b)
+    ball: np.ndarray  # (nj,) bool: ball joints (no angular rows: the closed-form pivot)
+    child_is_b: np.ndarray  # (nj,) bool: the joint's side b is its tree child body (else side a)
+
+
+# ------------------------------------------------------------ small dense blocks
+@kernel
+def inverse6_into(a, out):
+    """out = a⁻¹ of a 6x6 matrix by Gauss-Jordan elimination with partial
+    pivoting (the row with the largest |entry| of the column as pivot); ``a``
+    is overwritten. A zero pivot (singular in floating point) fills out with
+    NaN; NaN entries propagate."""
+    for i in range(6):
+        for j in range(6):
+            out[i, j] = 0.0
+        out[i, i] = 1.0
+    for c in range(6):
+        p = c
+        big = abs(a[c, c])
+        for r in range(c + 1, 6):
+            v = abs(a[r, c])
+            if v > big:
+                big = v
+                p = r
+        if big == 0.0:
+            for i in range(6):
+                for j in range(6):
+                    out[i, j] = np.nan
+            return
+        if p != c:
+            for j in range(6):
+                t = a[c, j]
+                a[c, j] = a[p, j]
+                a[p, j] = t
+                t = out[c, j]
+                out[c, j] = out[p, j]
+                out[p, j] = t
+        piv = a[c, c]
+        for j in range(c + 1, 6):
+            a[c, j] = a[c, j] / piv
+        for j in range(6):
+            out[c, j] = out[c, j] / piv
+        a[c, c] = 1.0
+        for r in range(6):
+            if r == c:
+                continue
+            f = a[r, c]
+            if f != 0.0:
+                for j in range(c + 1, 6):
+                    a[r, j] -= f * a[c, j]
+                for j in range(6):
+                    out[r, j] -= f * out[c, j]
+            a[r, c] = 0.0
+
+
+@kernel
+def sym3_inverse_into(a, out):
+    """out[:3, :3] = a[:3, :3]⁻¹ of a symmetric matrix by the adjugate,
+    reading its upper triangle (0 if singular), the cofactors and
+    determinant summed as :func:`engine.math3d.sym3_inverse` sums them."""
+    a00, a01, a02 = a[0, 0], a[0, 1], a[0, 2]
+    a11, a12, a22 = a[1, 1], a[1, 2], a[2, 2]
+    c00 = a11 * a22 - a12 * a12
+    c01 = a02 * a12 - a01 * a22
+    c02 = a01 * a12 - a02 * a11
+    c11 = a00 * a22 - a02 * a02
+    c12 = a01 * a02 - a00 * a12
+    c22 = a00 * a11 - a01 * a01
+    det = a00 * c00 + a01 * c01 + a02 * c02
+    inv_det = 1.0 / det if det != 0.0 else 0.0
+    out[0, 0], out[0, 1], out[0, 2] = c00 * inv_det, c01 * inv_det, c02 * inv_det
+    out[1, 0], out[1, 1], out[1, 2] = c01 * inv_det, c11 * inv_det, c12 * inv_det
+    out[2, 0], out[2, 1], out[2, 2] = c02 * inv_det, c12 * inv_det, c22 * inv_det
+
+
+@kernel
+def mul_ab_into(A, B, out):
+    """out = A B of 6x6 blocks, each entry summed over i = 0..5 in order
+    (the loop over a row's entries innermost, independent of each other)."""
+    for r in range(6):
+        for c in range(6):
+            out[r, c] = 0.0
+        for i in range(6):
+            a = A[r, i]
+            for c in range(6):
+                out[r, c] += a * B[i, c]
+
+
+@kernel
+def mul_atb_into(A, B, out):
+    """out = Aᵀ B of 6x6 blocks, summed as ``mul_ab_into``."""
+    for r in range(6):
+        for c in range(6):
+            out[r, c] = 0.0
+        for i in range(6):
+            a = A[i, r]
+            for c in range(6):
+                out[r, c] += a * B[i, c]
+
+
+@kernel
+def mul_abt_into(A, B, out):
+    """out = A Bᵀ of 6x6 blocks, each entry a dot product of two rows summed in order."""
+    for r in range(6):
+        for c in range(6):
+            s = 0.0
+            for i in range(6):
+                s += A[r, i] * B[c, i]
+            out[r, c] = s
+
+
+# ------------------------------------------------------------ one world
+@kernel
+def factor(layout, Ja, Jb, mask, M, M_inv, use_leaf_inv, ball_rows, Dinv, L):
+    """Block LDLᵀ factors of [M Jᵀ; J 0] of one world into Dinv and L (n, 6, 6).
+
+    Ja, Jb (nj, 6, 6): each joint's rows on its sides a and b; mask (nj, 6):
+    1 on a used row, 0 on an unused one; M (nb, 6, 6): the bodies' metric
+    (kg, kg·m²) and, with ``use_leaf_inv``, M_inv its inverse (the leaf
+    bodies' pivots); ``ball_rows``: the ball joints' angular rows are empty,
+    so their pivots take the closed form. L of a root is 0."""
+    nb = layout.n_bodies
+    n = layout.order.size
+    # acc: Σ_children J_pᵀ D_j⁻¹ J_p of a body node, J_c D_c⁻¹ J_cᵀ of a joint node.
+    acc = np.zeros((n, 6, 6))
+    work = np.empty((6, 6))
+    for k in range(n):
+        node = layout.order[k]
+        Di = Dinv[node]
+        p = layout.parent[node]
+        if node < nb:
+            if use_leaf_inv and layout.leaf[node]:
+                for r in range(6):
+                    for c in range(6):
+                        Di[r, c] = M_inv[node, r, c]
+            else:
+                Mb, A = M[node], acc[node]
+                for r in range(6):
+                    for c in range(6):
+                        work[r, c] = Mb[r, c] - A[r, c]
+                inverse6_into(work, Di)
+            Ln = L[node]
+            if p < 0:
+                for r in range(6):
+                    for c in range(6):
+                        Ln[r, c] = 0.0
+                continue
+            j = p - nb
+            Jc = Jb[j] if layout.child_is_b[j] else Ja[j]
+            # L_b = D_b⁻¹ J_cᵀ; the parent joint's J_c D_b⁻¹ J_cᵀ = J_c L_b.
+            mul_abt_into(Di, Jc, Ln)
+            mul_ab_into(Jc, Ln, acc[p])
+        else:
+            j = node - nb
+            A = acc[node]
+            if ball_rows and layout.ball[j]:
+                # blockdiag(D[:3, :3], -I): the point rows' 3x3 block and -1 on the empty rows.
+                for r in range(3):
+                    for c in range(3):
+                        work[r, c] = -A[r, c]
+                    work[r, r] += mask[j, r] - 1.0
+                for r in range(6):
+                    for c in range(6):
+                        Di[r, c] = 0.0
+                sym3_inverse_into(work, Di)
+                for r in range(3, 6):
+                    Di[r, r] = -1.0
+            else:
+                for r in range(6):
+                    for c in range(6):
+                        work[r, c] = -A[r, c]
+                    work[r, r] += mask[j, r] - 1.0
+                inverse6_into(work, Di)
+            Ln = L[node]
+            if p < 0:
+                for r in range(6):
+                    for c in range(6):
+                        Ln[r, c] = 0.0
+                continue
+            Jp = Ja[j] if layout.child_is_b[j] else Jb[j]
+            # L_j = D_j⁻¹ J_p; the parent body's pivot loses J_pᵀ D_j⁻¹ J_p = J_pᵀ L_j.
+            mul_ab_into(Di, Jp, Ln)
+            mul_atb_into(Jp, Ln, work)
+            Ap = acc[p]
+            for r in range(6):
+                for c in range(6):
+                    Ap[r, c] += work[r, c]
+
+
+@kernel
+def substitute(layout, Dinv, L, R, X):
+    """X = (J M⁻¹ Jᵀ)⁻¹ R of one world, R and X (nj, 6, k), through the
+    factors of ``factor``: the forward substitution leaves first, the back
+    substitution roots first, x = -z on the joints' rows. Column by column,
+    each a 6x6 block product with fixed bounds, which the compiler can unroll."""
+    nb = layout.n_bodies
+    n = layout.order.size
+    k = R.shape[2]
+    y = np.empty((n, 6, k))  # forward values, overwritten by x in the back substitution
+    for node in range(nb):
+        for r in range(6):
+            for c in range(k):
+                y[node, r, c] = 0.0
+    for j in range(n - nb):
+        for r in range(6):
+            for c in range(k):
+                y[nb + j, r, c] = R[j, r, c]
+    tmp = np.empty(6)
+    for q in range(n):
+        node = layout.order[q]
+        p = layout.parent[node]
+        if p < 0:
+            continue
+        # y_parent -= L_nodeᵀ y_node (children in node order, as they come leaves first).
+        for c in range(k):
+            for r in range(6):
+                s = 0.0
+                for i in range(6):
+                    s += L[node, i, r] * y[node, i, c]
+                y[p, r, c] -= s
+    for q in range(n - 1, -1, -1):
+        node = layout.order[q]
+        p = layout.parent[node]
+        # x_node = D⁻¹ y_node - L_node x_parent (the parent's x is in y already).
+        for c in range(k):
+            for r in range(6):
+                s = 0.0
+                for i in range(6):
+                    s += Dinv[node, r, i] * y[node, i, c]
+                if p >= 0:
+                    t = 0.0
+                    for i in range(6):
+                        t += L[node, r, i] * y[p, i, c]
+                    s -= t
+                tmp[r] = s
+            for r in range(6):
+                y[node, r, c] = tmp[r]
+    for j in range(n - nb):
+        for r in range(6):
+            for c in range(k):
+                X[j, r, c] = -y[nb + j, r, c]
+
+
+# ------------------------------------------------------------ batches
+@parallel_kernel
+def factor_batch(layout, Ja, Jb, mask, M, M_inv, use_leaf_inv, ball_rows, Dinv, L):
+    """``factor`` of every world: Ja, Jb (W, nj, 6, 6), mask (W, nj, 6), M and
+    M_inv (W, nb, 6, 6) into Dinv, L (W, n, 6, 6)."""
+    nw = Ja.shape[0]
+    if nw < SERIAL_BELOW:
+        for w in range(nw):
+            factor(layout, Ja[w], Jb[w], mask[w], M[w], M_inv[w], use_leaf_inv, ball_rows, Dinv[w], L[w])
+    else:
+        for w in prange(nw):
+            factor(layout, Ja[w], Jb[w], mask[w], M[w], M_inv[w], use_leaf_inv, ball_rows, Dinv[w], L[w])
+
+
+@parallel_kernel
+def substitute_batch(layout, Dinv, L, R, X):
+    """``substitute`` of every world: R, X (W, nj, 6, k)."""
+    nw = R.shape[0]
+    if nw < SERIAL_BELOW:
+        for w in range(nw):
+            substitute(layout, Dinv[w], L[w], R[w], X[w])
+    else:
+        for w in prange(nw):
+            substitute(layout, Dinv[w], L[w], R[w], X[w])
