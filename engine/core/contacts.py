@@ -32,8 +32,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .jit import kernel, parallel_kernel, prange
-from .vec import add, cross, dot, load3, load4, rotate, rotate_inv, scale, sub
+from .jit import SERIAL_BELOW, kernel, parallel_kernel, prange
+from .vec import add, cross, dot, load3, load4, mat3_vec, rotate, rotate_inv, scale, sub
 
 IMPACT_SWEEPS = 16  # at most this many sweeps of impacts (a row of n balls needs about n/2)
 IMPACT_POINT_PASSES = 32  # at most this many passes over the points of a row in one impact
@@ -109,14 +109,6 @@ def _max0(x):
 
 
 @kernel
-def _mat_vec(m, r, v):
-    """m[r] @ v for a stack of 3x3 matrices m."""
-    return (m[r, 0, 0] * v[0] + m[r, 0, 1] * v[1] + m[r, 0, 2] * v[2],
-            m[r, 1, 0] * v[0] + m[r, 1, 1] * v[1] + m[r, 1, 2] * v[2],
-            m[r, 2, 0] * v[0] + m[r, 2, 1] * v[1] + m[r, 2, 2] * v[2])
-
-
-@kernel
 def _lever(arm, r, j):
     return (arm[r, j, 0], arm[r, j, 1], arm[r, j, 2])
 
@@ -135,13 +127,13 @@ def _apply(R, r, j, P, vel, angvel):
     if R.dyn_a[r]:
         a = R.a[r]
         va = sub(load3(vel, a), scale(R.inv_ma[r], P))
-        wa = sub(load3(angvel, a), _mat_vec(R.ia, r, cross(_lever(R.ra, r, j), P)))
+        wa = sub(load3(angvel, a), mat3_vec(R.ia, r, cross(_lever(R.ra, r, j), P)))
         vel[a, 0], vel[a, 1], vel[a, 2] = va
         angvel[a, 0], angvel[a, 1], angvel[a, 2] = wa
     if R.dyn_b[r]:
         b = R.b[r]
         vb = add(load3(vel, b), scale(R.inv_mb[r], P))
-        wb = add(load3(angvel, b), _mat_vec(R.ib, r, cross(_lever(R.rb, r, j), P)))
+        wb = add(load3(angvel, b), mat3_vec(R.ib, r, cross(_lever(R.rb, r, j), P)))
         vel[b, 0], vel[b, 1], vel[b, 2] = vb
         angvel[b, 0], angvel[b, 1], angvel[b, 2] = wb
 
@@ -335,12 +327,17 @@ def _impact_row(R, r, vel, angvel, loaded, pending, first_target, threshold):
 
 # ------------------------------------------------------------------ batches
 # Each prange body is one call of a kernel of one world (or row): numba's
-# parallel lowering is kept to the loop itself.
+# parallel lowering is kept to the loop itself. Below SERIAL_BELOW worlds (or
+# rows) the loop runs on the calling thread: waking the workers costs more.
 @parallel_kernel
 def warm_start(R, order, world_start, vel, angvel):
     """Apply every row's accumulated impulses (the last substep's) again."""
-    for w in prange(world_start.size - 1):
-        _warm_start_world(R, order, world_start[w], world_start[w + 1], vel[w], angvel[w])
+    if world_start.size - 1 < SERIAL_BELOW:
+        for w in range(world_start.size - 1):
+            _warm_start_world(R, order, world_start[w], world_start[w + 1], vel[w], angvel[w])
+    else:
+        for w in prange(world_start.size - 1):
+            _warm_start_world(R, order, world_start[w], world_start[w + 1], vel[w], angvel[w])
 
 
 @kernel
@@ -352,9 +349,14 @@ def _warm_start_world(R, order, lo, hi, vel, angvel):
 @parallel_kernel
 def solve(R, order, world_start, pos, ori, vel, angvel, p, use_bias, only_free):
     """One sweep over every row (``only_free``: the rows of free bodies)."""
-    for w in prange(world_start.size - 1):
-        _solve_world(R, order, world_start[w], world_start[w + 1], pos[w], ori[w], vel[w], angvel[w], p, use_bias,
-                     only_free)
+    if world_start.size - 1 < SERIAL_BELOW:
+        for w in range(world_start.size - 1):
+            _solve_world(R, order, world_start[w], world_start[w + 1], pos[w], ori[w], vel[w], angvel[w], p, use_bias,
+                         only_free)
+    else:
+        for w in prange(world_start.size - 1):
+            _solve_world(R, order, world_start[w], world_start[w + 1], pos[w], ori[w], vel[w], angvel[w], p, use_bias,
+                         only_free)
 
 
 @kernel
@@ -370,8 +372,12 @@ def _solve_world(R, order, lo, hi, pos, ori, vel, angvel, p, use_bias, only_free
 @parallel_kernel
 def separations(R, rows, pos, ori, out):
     """Current separations (m) of the points of ``rows`` into out (len(rows), 4)."""
-    for k in prange(rows.size):
-        _separations_row(R, rows[k], pos, ori, out, k)
+    if rows.size < SERIAL_BELOW:
+        for k in range(rows.size):
+            _separations_row(R, rows[k], pos, ori, out, k)
+    else:
+        for k in prange(rows.size):
+            _separations_row(R, rows[k], pos, ori, out, k)
 
 
 @kernel
@@ -384,8 +390,12 @@ def _separations_row(R, r, pos, ori, out, k):
 @parallel_kernel
 def bounce_in_place(R, order, world_start, vel, angvel, held, target):
     """Rows on jointed bodies: raise the bouncing points' separating speeds."""
-    for w in prange(world_start.size - 1):
-        _bounce_world(R, order, world_start[w], world_start[w + 1], vel[w], angvel[w], held, target)
+    if world_start.size - 1 < SERIAL_BELOW:
+        for w in range(world_start.size - 1):
+            _bounce_world(R, order, world_start[w], world_start[w + 1], vel[w], angvel[w], held, target)
+    else:
+        for w in prange(world_start.size - 1):
+            _bounce_world(R, order, world_start[w], world_start[w + 1], vel[w], angvel[w], held, target)
 
 
 @kernel
@@ -472,9 +482,14 @@ def impacts(R, order, world_start, vel, angvel, seed, loaded, bounce, first_targ
             lam_n_start, threshold):
     """The sequential impacts of every world's free bodies (see ``_impacts_world``)."""
     N = vel.shape[1]
-    for w in prange(world_start.size - 1):
-        _impacts_world(R, order, world_start[w], world_start[w + 1], vel[w], angvel[w], seed, loaded, bounce,
-                       first_target, undo_n, undo_t1, undo_t2, lam_n_start, threshold, N)
+    if world_start.size - 1 < SERIAL_BELOW:
+        for w in range(world_start.size - 1):
+            _impacts_world(R, order, world_start[w], world_start[w + 1], vel[w], angvel[w], seed, loaded, bounce,
+                           first_target, undo_n, undo_t1, undo_t2, lam_n_start, threshold, N)
+    else:
+        for w in prange(world_start.size - 1):
+            _impacts_world(R, order, world_start[w], world_start[w + 1], vel[w], angvel[w], seed, loaded, bounce,
+                           first_target, undo_n, undo_t1, undo_t2, lam_n_start, threshold, N)
 
 
 # ------------------------------------------------------------------ prepare
@@ -512,7 +527,7 @@ def world_inv_inertia(q, inv_inertia_body, out, r):
 def _effective_mass(inv_mass_sum, ia, ib, r, ra, rb, d):
     """1 / (1/m_a + 1/m_b + (r_a × d)·I_a⁻¹(r_a × d) + (r_b × d)·I_b⁻¹(r_b × d)), kg."""
     ran, rbn = cross(ra, d), cross(rb, d)
-    k = inv_mass_sum + dot(ran, _mat_vec(ia, r, ran)) + dot(rbn, _mat_vec(ib, r, rbn))
+    k = inv_mass_sum + dot(ran, mat3_vec(ia, r, ran)) + dot(rbn, mat3_vec(ib, r, rbn))
     return 1.0 / max(k, 1e-30)
 
 
@@ -525,9 +540,14 @@ def prepare(R, p, point, lam_t, pos, ori, vel, angvel, inv_inertia, mu_static, m
     coefficient of each point (static while it sticks: tangential speed
     under ``stick_speed`` m/s, else kinetic), the tangent parts of the
     warm-start impulses ``lam_t`` (R, 4, 3), and the normal speeds ``vn0``."""
-    for r in prange(R.w.size):
-        _prepare_row(R, r, p, point, lam_t, pos, ori, vel, angvel, inv_inertia, mu_static, mu_kinetic,
-                     stick_speed, vn0)
+    if R.w.size < SERIAL_BELOW:
+        for r in range(R.w.size):
+            _prepare_row(R, r, p, point, lam_t, pos, ori, vel, angvel, inv_inertia, mu_static, mu_kinetic,
+                         stick_speed, vn0)
+    else:
+        for r in prange(R.w.size):
+            _prepare_row(R, r, p, point, lam_t, pos, ori, vel, angvel, inv_inertia, mu_static, mu_kinetic,
+                         stick_speed, vn0)
 
 
 @kernel

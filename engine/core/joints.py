@@ -31,7 +31,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .jit import SERIAL_BELOW, kernel, parallel_kernel, prange
-from .vec import add, dot, load3, load4, quat_conj, quat_mul, rotate, scale
+from .vec import add, cross, dot, load3, load4, mat3_vec, quat_conj, quat_mul, rotate, scale
 
 HINGE, BALL, FIXED = 0, 1, 2
 #: Beyond this swing (rad) a ball joint's twist limit row is dropped: the twist
@@ -171,14 +171,6 @@ def empty_geometry(num_worlds, num_joints) -> JointGeometry:
 
 # ------------------------------------------------------------- warm start
 @kernel
-def _mat_vec(m, i, v):
-    """m[i] @ v for a stack of 3x3 matrices."""
-    return (m[i, 0, 0] * v[0] + m[i, 0, 1] * v[1] + m[i, 0, 2] * v[2],
-            m[i, 1, 0] * v[0] + m[i, 1, 1] * v[1] + m[i, 1, 2] * v[2],
-            m[i, 2, 0] * v[0] + m[i, 2, 1] * v[1] + m[i, 2, 2] * v[2])
-
-
-@kernel
 def _add3(a, i, v, sign):
     a[i, 0] += sign * v[0]
     a[i, 1] += sign * v[1]
@@ -207,17 +199,12 @@ def _warm_start_world(J, order, iinv, inv_mass, g, w, lin, ang, lim, vel, angvel
             L = add(L, add(scale(l0 - l1, jt), scale(l2, js)))
         ra = (g.ra[w, j, 0], g.ra[w, j, 1], g.ra[w, j, 2])
         rb = (g.rb[w, j, 0], g.rb[w, j, 1], g.rb[w, j, 2])
-        ang_a = _mat_vec(iinv, a, add(_cross(ra, P), L))
-        ang_b = _mat_vec(iinv, b, add(_cross(rb, P), L))
+        ang_a = mat3_vec(iinv, a, add(cross(ra, P), L))
+        ang_b = mat3_vec(iinv, b, add(cross(rb, P), L))
         _add3(vel, a, scale(inv_mass[a], P), -1.0)
         _add3(angvel, a, ang_a, -1.0)
         _add3(vel, b, scale(inv_mass[b], P), 1.0)
         _add3(angvel, b, ang_b, 1.0)
-
-
-@kernel
-def _cross(a, b):
-    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
 
 
 @parallel_kernel
@@ -264,14 +251,14 @@ def _passive_world(J, order, iinv, g, w, stiffness, damping, rest, broken, angve
             if abs(err) > math.pi:
                 # The short way round to the rest angle (angles lie in [-π, π]).
                 err = err - 2.0 * math.pi * np.rint(err / (2.0 * math.pi))
-            inv_m = dot(axis, _mat_vec(iinv, a, axis)) + dot(axis, _mat_vec(iinv, b, axis))
+            inv_m = dot(axis, mat3_vec(iinv, a, axis)) + dot(axis, mat3_vec(iinv, b, axis))
             den = 1.0 + (h * ck) * inv_m
             wa, wb = load3(angvel, a), load3(angvel, b)
             rate = dot((wb[0] - wa[0], wb[1] - wa[1], wb[2] - wa[2]), axis)
             p = -h * (kj * err + ck * rate) / den
             impulse = scale(p, axis)
-            _add3(angvel, a, _mat_vec(iinv, a, impulse), -1.0)
-            _add3(angvel, b, _mat_vec(iinv, b, impulse), 1.0)
+            _add3(angvel, a, mat3_vec(iinv, a, impulse), -1.0)
+            _add3(angvel, b, mat3_vec(iinv, b, impulse), 1.0)
 
 
 @parallel_kernel

@@ -133,6 +133,14 @@ def rotate_inv(q, v):
 
 
 @kernel
+def mat3_vec(m, i, v):
+    """m[i] @ v for a stack m of 3x3 matrices, each row summed left to right."""
+    return (m[i, 0, 0] * v[0] + m[i, 0, 1] * v[1] + m[i, 0, 2] * v[2],
+            m[i, 1, 0] * v[0] + m[i, 1, 1] * v[1] + m[i, 1, 2] * v[2],
+            m[i, 2, 0] * v[0] + m[i, 2, 1] * v[1] + m[i, 2, 2] * v[2])
+
+
+@kernel
 def quat_integrate(q, omega, h):
     """q + h/2 (ω ⊗ q), renormalised: the first-order update of an
     orientation by a world angular velocity ω (rad/s) over h seconds."""
