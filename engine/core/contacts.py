@@ -32,7 +32,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .jit import SERIAL_BELOW, kernel, parallel_kernel, prange
+from .jit import SERIAL_BELOW, SERIAL_ROWS_BELOW, kernel, parallel_kernel, prange
 from .vec import add, cross, dot, load3, load4, mat3_vec, rotate, rotate_inv, scale, sub
 
 IMPACT_SWEEPS = 16  # at most this many sweeps of impacts (a row of n balls needs about n/2)
@@ -327,8 +327,9 @@ def _impact_row(R, r, vel, angvel, loaded, pending, first_target, threshold):
 
 # ------------------------------------------------------------------ batches
 # Each prange body is one call of a kernel of one world (or row): numba's
-# parallel lowering is kept to the loop itself. Below SERIAL_BELOW worlds (or
-# rows) the loop runs on the calling thread: waking the workers costs more.
+# parallel lowering is kept to the loop itself. Below SERIAL_BELOW worlds
+# (SERIAL_ROWS_BELOW rows) the loop runs on the calling thread: waking the
+# workers costs more.
 @parallel_kernel
 def warm_start(R, order, world_start, vel, angvel):
     """Apply every row's accumulated impulses (the last substep's) again."""
@@ -372,7 +373,7 @@ def _solve_world(R, order, lo, hi, pos, ori, vel, angvel, p, use_bias, only_free
 @parallel_kernel
 def separations(R, rows, pos, ori, out):
     """Current separations (m) of the points of ``rows`` into out (len(rows), 4)."""
-    if rows.size < SERIAL_BELOW:
+    if rows.size < SERIAL_ROWS_BELOW:
         for k in range(rows.size):
             _separations_row(R, rows[k], pos, ori, out, k)
     else:
@@ -540,7 +541,7 @@ def prepare(R, p, point, lam_t, pos, ori, vel, angvel, inv_inertia, mu_static, m
     coefficient of each point (static while it sticks: tangential speed
     under ``stick_speed`` m/s, else kinetic), the tangent parts of the
     warm-start impulses ``lam_t`` (R, 4, 3), and the normal speeds ``vn0``."""
-    if R.w.size < SERIAL_BELOW:
+    if R.w.size < SERIAL_ROWS_BELOW:
         for r in range(R.w.size):
             _prepare_row(R, r, p, point, lam_t, pos, ori, vel, angvel, inv_inertia, mu_static, mu_kinetic,
                          stick_speed, vn0)

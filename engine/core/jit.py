@@ -32,6 +32,9 @@ prange = numba.prange
 #: Below this many worlds a batch is stepped on the calling thread: waking the
 #: worker threads costs more than a small batch's step.
 SERIAL_BELOW = 8
+#: The same for kernels looping over rows (contact rows of all worlds): a
+#: row's work is a few hundred operations, so many rows pay for the wake-up.
+SERIAL_ROWS_BELOW = 1024
 
 
 def set_threads(n: int | None = None) -> int:
