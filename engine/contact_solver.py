@@ -79,11 +79,8 @@ class ContactRows:
         s = contacts.settings
         N = model.num_bodies
         self.w, self.p, self.a, self.b = w, p, a, b
-        self.ka, self.kb = w * N + a, w * N + b
+        self.ka, self.kb = w * N + a, w * N + b  # flat (world, body) keys, for the colouring
         self.dyn_a, self.dyn_b = model.dynamic[a], model.dynamic[b]
-        # Rows whose body a is static (ground contacts) get exact zero changes
-        # on that side, and _scatter writes back only dynamic bodies.
-        self.a_moves = bool(self.dyn_a.any())
         self.inv_ma, self.inv_mb = model.inv_mass[a], model.inv_mass[b]
         R = len(w)
         self.valid = valid
@@ -101,10 +98,9 @@ class ContactRows:
             ia=np.empty((R, 3, 3)), ib=np.empty((R, 3, 3)), mn=empty4(), mt1=empty4(), mt2=empty4(), mu=empty4(),
             e=self.e, lam_n=lam_n, lam_t1=empty4(), lam_t2=empty4(), max_lam_n=np.zeros((R, 4)),
             s_close=np.zeros((R, 4)), vn_close=empty4())
-        self.vn0 = empty4()
         kernels.prepare(self.arrays, p, point, lam_t, state.position, state.orientation, state.velocity,
                         state.angular_velocity, model.inv_inertia, contacts.mu_static, contacts.mu_kinetic,
-                        STICK_SPEED, self.vn0)
+                        STICK_SPEED)
         A = self.arrays
         self.n, self.t1, self.t2 = A.n, A.t1, A.t2
         self.xa0, self.xb0, self.ra, self.rb, self.la, self.lb = A.xa0, A.xb0, A.ra, A.rb, A.la, A.lb

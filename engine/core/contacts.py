@@ -33,7 +33,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .jit import SERIAL_BELOW, SERIAL_ROWS_BELOW, kernel, parallel_kernel, prange
-from .vec import add, cross, dot, load3, load4, mat3_vec, rotate, rotate_inv, scale, sub
+from .vec import add, cross, dot, load3, load4, mat3_vec, quat_to_matrix, rotate, rotate_inv, scale, sub
 
 IMPACT_SWEEPS = 16  # at most this many sweeps of impacts (a row of n balls needs about n/2)
 IMPACT_POINT_PASSES = 32  # at most this many passes over the points of a row in one impact
@@ -509,16 +509,12 @@ def tangents(n):
 def world_inv_inertia(q, inv_inertia_body, out, r):
     """out[r] = R diag(I_b⁻¹) Rᵀ, the world inverse inertia of a body turned
     by the unit quaternion q (1/(kg m²))."""
-    w, x, y, z = q
-    m00, m01, m02 = 1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)
-    m10, m11, m12 = 2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)
-    m20, m21, m22 = 2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)
+    c0, c1, c2 = quat_to_matrix(q)  # columns of R
     d0, d1, d2 = inv_inertia_body
-    rows = ((m00, m01, m02), (m10, m11, m12), (m20, m21, m22))
     for i in range(3):
-        ri = rows[i]
+        ri = (c0[i], c1[i], c2[i])
         for j in range(i, 3):
-            rj = rows[j]
+            rj = (c0[j], c1[j], c2[j])
             v = ri[0] * d0 * rj[0] + ri[1] * d1 * rj[1] + ri[2] * d2 * rj[2]
             out[r, i, j] = v
             out[r, j, i] = v
@@ -533,27 +529,26 @@ def _effective_mass(inv_mass_sum, ia, ib, r, ra, rb, d):
 
 
 @parallel_kernel
-def prepare(R, p, point, lam_t, pos, ori, vel, angvel, inv_inertia, mu_static, mu_kinetic, stick_speed, vn0):
+def prepare(R, p, point, lam_t, pos, ori, vel, angvel, inv_inertia, mu_static, mu_kinetic, stick_speed):
     """Fill the step-constant fields of every row of ``R`` from its manifold
     (``R.n``, ``point`` (R, 4, 3), ``R.sep0`` holding the separations,
     ``R.valid``) at the step's start state: lever arms in the world and body
     frames, world inverse inertias, tangents, effective masses, the friction
     coefficient of each point (static while it sticks: tangential speed
     under ``stick_speed`` m/s, else kinetic), the tangent parts of the
-    warm-start impulses ``lam_t`` (R, 4, 3), and the normal speeds ``vn0``."""
+    warm-start impulses ``lam_t`` (R, 4, 3), and the normal speeds (``R.vn_close``)."""
     if R.w.size < SERIAL_ROWS_BELOW:
         for r in range(R.w.size):
             _prepare_row(R, r, p, point, lam_t, pos, ori, vel, angvel, inv_inertia, mu_static, mu_kinetic,
-                         stick_speed, vn0)
+                         stick_speed)
     else:
         for r in prange(R.w.size):
             _prepare_row(R, r, p, point, lam_t, pos, ori, vel, angvel, inv_inertia, mu_static, mu_kinetic,
-                         stick_speed, vn0)
+                         stick_speed)
 
 
 @kernel
-def _prepare_row(R, r, p, point, lam_t, pos, ori, vel, angvel, inv_inertia, mu_static, mu_kinetic, stick_speed,
-                 vn0):
+def _prepare_row(R, r, p, point, lam_t, pos, ori, vel, angvel, inv_inertia, mu_static, mu_kinetic, stick_speed):
     """``prepare`` of row r."""
     w, a, b = R.w[r], R.a[r], R.b[r]
     xa, xb = load3(pos[w], a), load3(pos[w], b)
@@ -587,7 +582,6 @@ def _prepare_row(R, r, p, point, lam_t, pos, ori, vel, angvel, inv_inertia, mu_s
         R.mt2[r, j] = _effective_mass(base, R.ia, R.ib, r, ra, rb, t2) if valid else 0.0
         vrel = sub(sub(add(vb, cross(wb, rb)), va), cross(wa, ra))
         vn = dot(vrel, n)
-        vn0[r, j] = vn
         R.vn_close[r, j] = vn
         vt = sub(vrel, scale(vn, n))
         R.mu[r, j] = mu_static[p[r]] if dot(vt, vt) < stick_speed * stick_speed else mu_kinetic[p[r]]

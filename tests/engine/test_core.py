@@ -176,25 +176,6 @@ def upward_crossings(x, dt):
     return (i + (-x[i]) / (x[i + 1] - x[i])) * dt
 
 
-def test_spring_period():
-    k, m = 100.0, 1.0  # ω = 10 rad/s, T = 0.6283 s
-    model = oscillator(k, m)
-    assert model.effects["springs"].explicit.size == 1  # the explicit (symplectic) path
-    dt, h = model.settings.dt, model.settings.substep_dt
-    _, x = record_x(model, 600)  # 10 s, about 16 periods
-    x = x[:, 0]
-    period = np.diff(upward_crossings(x, dt)).mean()
-    exact = 2 * math.pi * math.sqrt(m / k)
-    # Acceptance: within 0.5 % at the default dt.
-    assert abs(period / exact - 1) < 5e-3
-    # Sharper: semi-implicit Euler oscillates at ω_h = (2/h) asin(ω h / 2), a period
-    # shorter by (ω h)²/24 = 7.2e-5 relative; the crossing interpolation is good
-    # to ~1e-6, so 1e-5 separates the scheme's error from a wrong one.
-    omega = math.sqrt(k / m)
-    predicted = (omega * h / 2) / math.asin(omega * h / 2) - 1
-    assert abs(period / exact - 1 - predicted) < 1e-5
-
-
 def _substep_map_angle(integrator, omega, h):
     """The phase θ that one substep of ``integrator`` turns the undamped
     oscillator ẍ = -ω² x by: the argument of the eigenvalues of its linear
@@ -213,8 +194,9 @@ def _substep_map_angle(integrator, omega, h):
 def test_spring_period_of_each_integrator(integrator):
     """The period of a mass on a spring against 2π sqrt(m/k), and against
     the period each scheme's own map predicts (2π h / θ, θ the phase of one
-    substep: RK4's is the exact period to 3e-8, semi-implicit Euler's is
-    shorter by 7.2e-5 and explicit Euler's longer by 5.8e-4 relative here)."""
+    substep: RK4's is the exact period to 3e-8; semi-implicit Euler's,
+    (2/h) asin(ω h / 2), is shorter by (ω h)²/24 = 7.2e-5 and explicit
+    Euler's longer by 5.8e-4 relative here)."""
     k, m = 100.0, 1.0  # ω = 10 rad/s, T = 0.6283 s
     model = oscillator(k, m, integrator=integrator)
     assert model.effects["springs"].explicit.size == 1  # the explicit force path
