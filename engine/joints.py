@@ -37,16 +37,19 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
 from .coloring import color_pairs
-from .math3d import (EX, EY, EZ, clamp_norm, cross, quat_rotate_inv, dot, mat_vec, quat_conj, quat_mul,
-                     quat_rotate, sym3_solve, quat_to_matrix, world_inv_inertia)
+from .math3d import quat_rotate_inv, dot, quat_conj, quat_mul, quat_to_matrix, world_inv_inertia
 from .joint_projection import project_joints, undo_unfollowed_moves
 from .core.joints import (BALL, FIXED, HINGE, TWIST_LIMIT_MAX_SWING, JointArrays, JointGeometry,  # noqa: F401
                           empty_geometry, joint_geometry)
 from .core.joints import passive as passive_kernel, warm_start as warm_start_kernel
+from .core.joint_rows import FIXED_LOCK, HINGE_LOCK, POINT, add_load as add_load_kernel, snap as snap_kernel
+from .core.joint_rows import project_positions as project_positions_kernel, solve_equality as solve_equality_kernel
+from .core.joint_rows import solve_limits as solve_limits_kernel
 from .soft import make_soft, select_softness
 from .state import Event
 
@@ -515,9 +518,8 @@ class JointSet:
         return (~state.joint_broken.take(idx, 1)).astype(float)
 
     def _add_load(self, state):
-        self._lin_sum += state.joint_linear_impulse
-        L = state.joint_angular_impulse
-        self._ang_sum += np.sqrt(dot(L, L)) + np.abs(state.joint_limit_impulse).sum(axis=-1)
+        add_load_kernel(state.joint_linear_impulse, state.joint_angular_impulse, state.joint_limit_impulse,
+                        self._lin_sum, self._ang_sum)
 
     def warm_start(self, model, state):
         if self.breakable and self._substeps_done:
@@ -539,15 +541,6 @@ class JointSet:
         Jt, _, Js, _, _ = self.limit_geometry(state, idx)
         return (lam[..., 0:1] - lam[..., 1:2]) * Jt + lam[..., 2:3] * Js
 
-    def _apply(self, model, state, a, b, ra, rb, P, L):
-        """Apply linear impulse P at the anchors and angular impulse L (to the
-        child; the parent gets the opposite)."""
-        inv_m = model.inv_mass
-        state.velocity[:, a] -= P * inv_m[a][:, None]
-        state.velocity[:, b] += P * inv_m[b][:, None]
-        state.angular_velocity[:, a] -= mat_vec(self._iinv[:, a], cross(ra, P) + L)
-        state.angular_velocity[:, b] += mat_vec(self._iinv[:, b], cross(rb, P) + L)
-
     def solve(self, model, state, h, use_bias):
         # The equality rows (tree and Gauss-Seidel) run in the biased solve, and
         # in the relax only with joint_relax; the limit rows run after them in
@@ -556,73 +549,52 @@ class JointSet:
             self._solve_equality(model, state, h, use_bias)
         if not self.gs_limit.size:
             return
-        rows = self._gs_limit_rows(state)
-        soft = self._limit_soft
-        # Rows lower twist, upper twist, swing: their axes and the terms of _one_sided.
-        slots = [(axis, self._one_sided_terms(rows[C], rows[m], h, use_bias, soft)) for axis, C, m in
-                 (("Jt", "C_lo", "m_twist"), ("-Jt", "C_hi", "m_twist"), ("Js", "C_swing", "m_swing"))]
-        act = self._active(state, self.gs_limit) if state.joint_broken[:, self.gs_limit].any() else None
+        # Gauss-Seidel limit rows, joint by joint colour by colour
+        # (engine.core.joint_rows.solve_limits): their axes, errors and
+        # effective masses from the geometry at the solve's positions.
+        s = self.settings
+        _, _, twist_row, swing_row = self._row_orders
+        bias_rate, mass_scale, impulse_scale = self._soft_terms(use_bias, self._limit_soft)
+        if use_bias and self._limit_zone is not None:
+            zs, zone = self._limit_zone
+        else:
+            zs, zone = self._limit_soft, np.zeros((state.num_worlds, 0), dtype=bool)
+        solve_limits_kernel(self.arrays, self.gs_limit, twist_row, swing_row, self.lower, self.upper, self._iinv,
+                            self.geometry(state), state.angular_velocity, state.joint_limit_impulse,
+                            state.joint_broken, h, bool(use_bias), float(bias_rate), float(mass_scale),
+                            float(impulse_scale), np.ascontiguousarray(zone), float(zs.bias_rate),
+                            float(zs.mass_scale), float(zs.impulse_scale), float(s.limit_soft_margin),
+                            float(s.joint_max_angular_push_out))
+
+    @cached_property
+    def _row_orders(self):
+        """The Gauss-Seidel rows in solve order: (joints, kinds) of the
+        equality rows, colour by colour its hinge locks, fixed locks, then
+        point rows; and for each joint of ``gs_limit`` whether it has twist
+        rows and a swing row (its colour's twist and swing slices)."""
+        joints, kinds = [np.zeros(0, dtype=np.int64)], [np.zeros(0, dtype=np.int64)]
+        twist_row = np.zeros(self.gs_limit.size, dtype=bool)
+        swing_row = np.zeros(self.gs_limit.size, dtype=bool)
         for color in self.colors:
-            whole = color["gs_slice"]
-            if whole.start == whole.stop:
-                continue
-            # A colour's joints share no body: their bodies' angular velocities
-            # and impulses are gathered once for its twist and swing rows (each
-            # a slice of this range) and written back once.
-            idx = self.gs_limit[whole]
-            a, b = self.parent[idx], self.child[idx]
-            wa, wb = state.angular_velocity.take(a, 1), state.angular_velocity.take(b, 1)
-            ia, ib = rows["ia"][:, whole], rows["ib"][:, whole]
-            lam = state.joint_limit_impulse.take(idx, 1)
-            for slot, (pos, (axis, (gain, bias, isc))) in enumerate(zip(
-                    (color["twist_slice"], color["twist_slice"], color["swing_slice"]), slots)):
-                if pos.start == pos.stop:
-                    continue
-                k = slice(pos.start - whole.start, pos.stop - whole.start)
-                self._one_sided(wa[:, k], wb[:, k], ia[:, k], ib[:, k], rows[axis][:, pos], gain[:, pos],
-                                bias[:, pos], None if isc is None else isc[:, pos],
-                                None if act is None else act[:, pos], lam[:, k, slot])
-            state.angular_velocity[:, a] = wa
-            state.angular_velocity[:, b] = wb
-            state.joint_limit_impulse[:, idx] = lam
-
-    def _gs_limit_rows(self, state):
-        """Axes, errors (C >= 0 allowed) and effective masses of every
-        Gauss-Seidel limit row, at the solve's positions (within a step
-        computed once per set of positions)."""
-        if self._frames_on and state is self._frames_state:
-            if self._gs_rows is None:
-                self._gs_rows = self._compute_gs_limit_rows(state)
-            return self._gs_rows
-        return self._compute_gs_limit_rows(state)
-
-    def _compute_gs_limit_rows(self, state):
-        idx = self.gs_limit
-        a, b = self.parent[idx], self.child[idx]
-        Jt, twist, Js, C_swing, twist_defined = self.limit_geometry(state, idx)
-        lo, hi = self.lower[idx], self.upper[idx]
-        has_lo, has_hi = np.isfinite(lo) & twist_defined, np.isfinite(hi) & twist_defined
-        ia, ib = self._iinv.take(a, 1), self._iinv.take(b, 1)
-
-        def effective_mass(axis):
-            k = dot(axis, mat_vec(ia, axis)) + dot(axis, mat_vec(ib, axis))
-            return 1.0 / np.maximum(k, 1e-30)
-
-        return {"Jt": Jt, "-Jt": -Jt, "Js": Js, "C_swing": C_swing, "ia": ia, "ib": ib,
-                "C_lo": np.where(has_lo, twist - np.where(has_lo, lo, 0.0), 1e9),
-                "C_hi": np.where(has_hi, np.where(has_hi, hi, 0.0) - twist, 1e9),
-                "m_twist": effective_mass(Jt), "m_swing": effective_mass(Js)}
+            for key, kind in (("hinge", HINGE_LOCK), ("fixed", FIXED_LOCK), ("point", POINT)):
+                joints.append(color[key])
+                kinds.append(np.full(color[key].size, kind, dtype=np.int64))
+            twist_row[color["twist_slice"]] = True
+            swing_row[color["swing_slice"]] = True
+        return (np.concatenate(joints).astype(np.int64), np.concatenate(kinds), twist_row, swing_row)
 
     def _solve_equality(self, model, state, h, use_bias):
-        soft = self._soft
-        bias = use_bias and self.settings.solver != "thesis"
-        for color in self.colors:
-            if color["hinge"].size:
-                self._solve_hinge_lock(model, state, color["hinge"], h, bias, soft)
-            if color["fixed"].size:
-                self._solve_fixed_lock(model, state, color["fixed"], h, bias, soft)
-            if color["point"].size:
-                self._solve_point(model, state, color["point"], h, bias, soft)
+        joints, kinds, _, _ = self._row_orders
+        if joints.size:
+            # The Gauss-Seidel point and lock rows (engine.core.joint_rows.solve_equality).
+            s = self.settings
+            bias = use_bias and s.solver != "thesis"
+            bias_rate, mass_scale, impulse_scale = self._soft_terms(bias, self._soft)
+            solve_equality_kernel(self.arrays, joints, kinds, self._iinv, model.inv_mass, self.geometry(state),
+                                  state.position, state.velocity, state.angular_velocity,
+                                  state.joint_linear_impulse, state.joint_angular_impulse, state.joint_broken,
+                                  float(bias_rate), float(mass_scale), float(impulse_scale),
+                                  float(s.joint_max_push_out), float(s.joint_max_angular_push_out))
         if self.tree is not None and self.loop_rows is not None:
             self.tree.solve_with_loops(self, model, state, self._soft_terms(use_bias, self._tree_soft),
                                        self._soft_terms(use_bias, self._loop_soft), use_bias)
@@ -635,118 +607,6 @@ class JointSet:
             return soft.bias_rate, soft.mass_scale, soft.impulse_scale
         return 0.0, 1.0, 0.0
 
-    def _solve_point(self, model, state, idx, h, use_bias, soft):
-        a, b, _, _, ra, rb = self.frames(state, idx)
-        xa, xb = state.position[:, a], state.position[:, b]
-        va, vb = state.velocity[:, a], state.velocity[:, b]
-        wa, wb = state.angular_velocity[:, a], state.angular_velocity[:, b]
-        cdot = vb + cross(wb, rb) - va - cross(wa, ra)
-        bias_rate, mass_scale, impulse_scale = self._soft_terms(use_bias, soft)
-        rhs = cdot
-        if bias_rate:
-            sep = xb + rb - xa - ra
-            rhs = cdot + clamp_norm(bias_rate * sep, self.settings.joint_max_push_out)
-        K = _point_mass_matrix(model.inv_mass[a] + model.inv_mass[b], ra, rb, self._iinv[:, a], self._iinv[:, b])
-        lam = state.joint_linear_impulse[:, idx]
-        P = -mass_scale * sym3_solve(K, rhs) - impulse_scale * lam
-        P = P * self._active(state, idx)[..., None]
-        state.joint_linear_impulse[:, idx] = lam + P
-        self._apply(model, state, a, b, ra, rb, P, 0.0)
-
-    def _solve_hinge_lock(self, model, state, idx, h, use_bias, soft):
-        a, b, fpw, fcw, ra, rb = self.frames(state, idx)
-        by = quat_rotate(fpw, EY)
-        bz = quat_rotate(fpw, EZ)
-        ia, ib = self._iinv[:, a], self._iinv[:, b]
-        isum = ia + ib
-        wrel = state.angular_velocity[:, b] - state.angular_velocity[:, a]
-        c1, c2 = dot(wrel, by), dot(wrel, bz)
-        bias_rate, mass_scale, impulse_scale = self._soft_terms(use_bias, soft)
-        if bias_rate:
-            ax_p = quat_rotate(fpw, EX)
-            ax_c = quat_rotate(fcw, EX)
-            err = clamp_norm(bias_rate * cross(ax_p, ax_c), self.settings.joint_max_angular_push_out)
-            c1 = c1 + dot(err, by)
-            c2 = c2 + dot(err, bz)
-        isy, isz = mat_vec(isum, by), mat_vec(isum, bz)
-        k11, k12, k22 = dot(by, isy), dot(by, isz), dot(bz, isz)
-        det = k11 * k22 - k12 * k12
-        inv_det = 1.0 / np.where(det > 1e-30, det, 1e-30)
-        x1 = (k22 * c1 - k12 * c2) * inv_det
-        x2 = (k11 * c2 - k12 * c1) * inv_det
-        lam = state.joint_angular_impulse[:, idx]
-        act = self._active(state, idx)
-        d1 = (-mass_scale * x1 - impulse_scale * lam[..., 1]) * act
-        d2 = (-mass_scale * x2 - impulse_scale * lam[..., 2]) * act
-        state.joint_angular_impulse[:, idx, 1] = lam[..., 1] + d1
-        state.joint_angular_impulse[:, idx, 2] = lam[..., 2] + d2
-        L = d1[..., None] * by + d2[..., None] * bz
-        state.angular_velocity[:, a] -= mat_vec(ia, L)
-        state.angular_velocity[:, b] += mat_vec(ib, L)
-
-    def _solve_fixed_lock(self, model, state, idx, h, use_bias, soft):
-        a, b, fpw, fcw, _, _ = self.frames(state, idx)
-        ia, ib = self._iinv[:, a], self._iinv[:, b]
-        rhs = state.angular_velocity[:, b] - state.angular_velocity[:, a]
-        bias_rate, mass_scale, impulse_scale = self._soft_terms(use_bias, soft)
-        if bias_rate:
-            # Rotation vector of q_c q_p⁻¹ (small-angle: 2·vec·sign(w)).
-            qd = quat_mul(fcw, quat_conj(fpw))
-            err = 2.0 * qd[..., 1:] * np.where(qd[..., 0:1] < 0, -1.0, 1.0)
-            rhs = rhs + clamp_norm(bias_rate * err, self.settings.joint_max_angular_push_out)
-        lam = state.joint_angular_impulse[:, idx]
-        L = -mass_scale * sym3_solve(ia + ib, rhs) - impulse_scale * lam
-        L = L * self._active(state, idx)[..., None]
-        state.joint_angular_impulse[:, idx] = lam + L
-        state.angular_velocity[:, a] -= mat_vec(ia, L)
-        state.angular_velocity[:, b] += mat_vec(ib, L)
-
-    def _one_sided_terms(self, C, m, h, use_bias, soft):
-        """Gain, bias and impulse scale of one-sided rows with error C (C >= 0
-        allowed) and effective mass m (Box2D v3 limits): speculative bias C/h,
-        rigid, while open; soft bias when violated. The impulse scale is None
-        where the softness has none (rigid limits, the relax solve)."""
-        bias_rate, mass_scale, impulse_scale = self._soft_terms(use_bias, soft)
-        open_ = C > 0.0
-        if use_bias and self._limit_zone is not None:
-            # Within the margin of its bound a violated row of an articulation
-            # in contact is as soft as its tree joints (Settings.limit_soft_margin).
-            zs, rows = self._limit_zone
-            zone = rows & ~open_ & (C > -self.settings.limit_soft_margin)
-            bias_rate = np.where(zone, zs.bias_rate, bias_rate)
-            mass_scale = np.where(zone, zs.mass_scale, mass_scale)
-            impulse_scale = np.where(zone, zs.impulse_scale, impulse_scale)
-        bias = np.where(open_, C / h, np.maximum(bias_rate * C, -self.settings.joint_max_angular_push_out))
-        if np.ndim(mass_scale) == 0 and mass_scale == 1.0:
-            gain = -m
-        else:
-            gain = -m * np.where(open_, 1.0, mass_scale)
-        if np.ndim(impulse_scale) == 0 and impulse_scale == 0.0:
-            return gain, bias, None
-        return gain, bias, np.where(open_, 0.0, impulse_scale)
-
-    @staticmethod
-    def _one_sided(wa, wb, ia, ib, axis, gain, bias, isc, act, lam):
-        """One-sided angular rows about ``axis`` on the angular velocities
-        ``wa``, ``wb`` of their bodies (updated in place, like the accumulated
-        impulses ``lam``): Δλ = gain (Ċ + bias) - isc λ with λ >= 0 (gain,
-        bias, isc of ``_one_sided_terms``; ``act``: 1.0 for unbroken joints,
-        None if none is broken; ``ia``, ``ib``: the bodies' world inverse
-        inertias)."""
-        d = gain * (dot(wb - wa, axis) + bias)
-        if isc is not None:
-            d = d - isc * lam
-        if not (lam.any() or (d > 0.0).any()):
-            return  # no row holds or takes an impulse: λ stays 0, the velocities as they are
-        new = np.maximum(lam + d, 0.0)
-        if act is not None:
-            new = new * act
-        d = new - lam
-        lam[...] = new
-        L = d[..., None] * axis
-        wa -= mat_vec(ia, L)
-        wb += mat_vec(ib, L)
-
     def end_step(self, model, state, h, events):
         self._frames_on, self._frames, self._frames_state = False, None, None
         self._drop_position_caches()
@@ -754,14 +614,13 @@ class JointSet:
         if not self.breakable:
             return
         self._add_load(state)
-        dt = model.settings.dt
-        force = np.sqrt(dot(self._lin_sum, self._lin_sum)) / dt
-        torque = self._ang_sum / dt
-        snapped = ((force > self.break_force) | (torque > self.break_torque)) & ~state.joint_broken
+        # Joints whose load over the step exceeds their break force or torque
+        # snap (engine.core.joint_rows.snap); their impulses are zeroed.
+        snapped = np.zeros(state.joint_broken.shape, dtype=bool)
+        snap_kernel(self._lin_sum, self._ang_sum, float(model.settings.dt), self.break_force, self.break_torque,
+                    state.joint_broken, state.joint_linear_impulse, state.joint_angular_impulse,
+                    state.joint_limit_impulse, snapped)
         if snapped.any():
-            state.joint_broken |= snapped
-            for arr in ("joint_linear_impulse", "joint_angular_impulse", "joint_limit_impulse"):
-                state.arrays[arr][snapped] = 0.0
             for w, j in zip(*np.nonzero(snapped)):
                 step = int(state.step[w]) + 1
                 events.append(Event("joint_broken", self.names[j], int(w), step, step * model.settings.dt))
@@ -790,30 +649,10 @@ class JointSet:
 
     def _project_positions(self, model, state):
         """The thesis's position correction: move the two anchors together,
-        split by inverse mass (the lighter body moves more)."""
-        for color in self.colors:
-            idx = color["all"]
-            a, b, _, _, ra, rb = self.frames(state, idx)
-            sep = state.position[:, b] + rb - state.position[:, a] - ra
-            ma, mb = model.inv_mass[a], model.inv_mass[b]
-            total = np.maximum(ma + mb, 1e-30)
-            act = self._active(state, idx)[..., None]
-            state.position[:, a] += sep * (ma / total)[:, None] * act
-            state.position[:, b] -= sep * (mb / total)[:, None] * act
-
-
-def _point_mass_matrix(inv_m_sum, ra, rb, ia, ib):
-    """K = (1/m_a + 1/m_b) I + [r_a]×ᵀ I_a⁻¹ [r_a]× + [r_b]×ᵀ I_b⁻¹ [r_b]× (3x3 per joint)."""
-    K = np.zeros(ra.shape + (3,))
-    for r, inv_i in ((ra, ia), (rb, ib)):
-        # Column k of [r]×ᵀ I⁻¹ [r]× is -r × (I⁻¹ (r × e_k)) = (I⁻¹ (r × e_k)) × r.
-        for k in range(3):
-            e = np.zeros(3)
-            e[k] = 1.0
-            K[..., :, k] += cross(mat_vec(inv_i, cross(r, np.broadcast_to(e, r.shape))), r)
-    for k in range(3):
-        K[..., k, k] += inv_m_sum
-    return K
+        split by inverse mass (the lighter body moves more), joint by joint
+        colour by colour (engine.core.joint_rows.project_positions)."""
+        project_positions_kernel(self.arrays, self._warm_joints, model.inv_mass, state.position,
+                                 state.orientation, state.joint_broken)
 
 
 def compile_joints(model, builder):
