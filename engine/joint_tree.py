@@ -21,27 +21,15 @@ from __future__ import annotations
 import numpy as np
 
 from .core import tree as tree_kernels
+from .core import tree_solve
 from .joints import BALL, FIXED, HINGE
-from .math3d import (EX, EY, EZ, clamp_norm, cross, dot, inverse_or_nan, mat_vec, quat_conj, quat_mul, quat_rotate,
-                     sym3_inverse, world_inv_inertia)
+from .math3d import EX, cross, inverse_or_nan, mat_vec, quat_conj, quat_mul, quat_rotate
 from .scatter import Scatter, scatter_add
 
-
-# Entries of -[r]× = [[0, r_z, -r_y], [-r_z, 0, r_x], [r_y, -r_x, 0]] in the
-# top-right block of a 6x6 joint Jacobian: (row, column, component of r, sign).
-_SKEW_ROW = np.array([0, 0, 1, 1, 2, 2])
-_SKEW_COL = np.array([4, 5, 3, 5, 3, 4])
-_SKEW_COMP = np.array([2, 1, 2, 0, 1, 0])
-_SKEW_SIGN = np.array([1.0, -1.0, -1.0, 1.0, 1.0, -1.0])
-_DIAG3 = np.arange(3)
 LOOP_SOLVE_BYTES = 256 * 2 ** 20  # most temporaries of one chunk of worlds in the loop solve
 LOOP_REGULARISATION = 1e-6  # of the largest diagonal entry, added to the loop rows' Schur complement
-ACTIVE_SET_TOLERANCE = 1e-6  # rad/s: a limit row closing faster than this after a solve joins the active set
-#: Most limit rows in a tree for its active set on one factorisation (``_limits_schur``); with
-#: more, B's columns cost more than factoring each pass. A chain of n limited ball joints (2n
-#: rows), ms a step at W = 1 and 32, refactoring -> one factorisation: n = 12 16.2 -> 12.0 and
-#: 47.8 -> 35.7; n = 24 24.5 -> 18.6 and 68.2 -> 68.9; n = 40 27.8 -> 27.4 and 96 -> 128.
-SCHUR_LIMIT_ROWS = 48
+#: Most limit rows in a tree for its active set on one factorisation (``engine.core.tree_solve``).
+SCHUR_LIMIT_ROWS = tree_solve.SCHUR_LIMIT_ROWS
 
 
 def _mm(A, B):
@@ -52,23 +40,6 @@ def _mm(A, B):
 def _mtm(A, B):
     """Aᵀ B for (..., k, n), (..., k, m)."""
     return np.matmul(np.swapaxes(A, -1, -2), B)
-
-
-def _in_limit_slots(on, lrows, lr, Ja, Jb, mask, r=None):
-    """Copies of the tree rows' Jacobian blocks Ja, Jb (W, nj, 6, 6), mask
-    (W, nj, 6) and, if given, right-hand side r with the limit rows ``lrows``
-    (W, nj, 3, 3; values ``lr``) in their joints' free slots 3 (twist) and 4
-    (swing) where ``on`` (W, nj, >= 2)."""
-    Ja, Jb, mask = Ja.copy(), Jb.copy(), mask.copy()
-    r = None if r is None else r.copy()
-    for k in range(2):
-        use = on[..., k]
-        Jb[..., 3 + k, 3:] = np.where(use[..., None], lrows[..., k, :], Jb[..., 3 + k, 3:])
-        Ja[..., 3 + k, 3:] = np.where(use[..., None], -lrows[..., k, :], Ja[..., 3 + k, 3:])
-        mask[..., 3 + k] = np.where(use, 1.0, mask[..., 3 + k])
-        if r is not None:
-            r[..., 3 + k] = np.where(use, lr[..., k], r[..., 3 + k])
-    return (Ja, Jb, mask) if r is None else (Ja, Jb, mask, r)
 
 
 class _JointTree:
@@ -187,6 +158,7 @@ class _Rows:
         self.hinges = np.flatnonzero(kind == HINGE)
         self.fixed = np.flatnonzero(kind == FIXED)
         self.used_rows = np.flatnonzero(self.eq_mask.reshape(-1))  # of the joints' 6 rows each, flattened
+        self.arrays = _row_arrays(joints, kind, parent, child, self.ang_mask, self.eq_mask)
 
     def _position_errors(self, state, a, b, fpw, fcw, ra, rb):
         """The joints' position errors: anchor separation x_b + r_b - x_a - r_a (m)
@@ -228,81 +200,62 @@ class _TreeSolver(_Rows):
         self.geometric_weight = None  # per step: 1, or (W, tree joints) weights, or None
         self.loop_geometric_weight = None  # the same for the loop-closing rows solved with the tree
         self._factored = None  # (state, blocks, factors) of the current positions and metric (see solve)
-        # Per tree joint, for limit_rows: the twist bounds with infinite ones as
-        # 0 (rad), which bounds are finite, the ball joints (as a column) and
-        # which limit rows exist (twist, swing, none) while the joint is whole.
+        # Per tree joint: which limit rows exist (twist, swing) while the joint
+        # is whole, and the tree's possible limit rows (tree joint, slot 0 twist
+        # or 1 swing), twist rows first.
         lo, hi = js.lower[j], js.upper[j]
-        self.limit_exists = np.zeros((j.size, 3), dtype=bool)
+        self.limit_exists = np.zeros((j.size, 2), dtype=bool)
         self.limit_exists[:, 0] = js.has_limit[j] & (self.kind != FIXED)
         self.limit_exists[:, 1] = js.has_swing[j]
-        self._limit_constants = (np.where(np.isfinite(lo), lo, 0.0), np.where(np.isfinite(hi), hi, 0.0),
-                                 np.isfinite(lo), np.isfinite(hi), (self.kind == BALL)[:, None], self.limit_exists)
+        twist_j, swing_j = np.flatnonzero(self.limit_exists[:, 0]), np.flatnonzero(self.limit_exists[:, 1])
+        self.limit_candidates = (np.concatenate((twist_j, swing_j)).astype(np.int64),
+                                 np.repeat([0, 1], (twist_j.size, swing_j.size)).astype(np.int64))
+        b = t.bodies
+        self.arrays = self.arrays._replace(
+            ball=np.ascontiguousarray(self.kind == BALL), lo=np.where(np.isfinite(lo), lo, 0.0),
+            hi=np.where(np.isfinite(hi), hi, 0.0), lo_finite=np.isfinite(lo), hi_finite=np.isfinite(hi),
+            limit_exists=self.limit_exists, cand_joint=self.limit_candidates[0], cand_slot=self.limit_candidates[1],
+            bodies=b.astype(np.int64), mass=np.ascontiguousarray(model.mass[b], dtype=float),
+            inertia=np.ascontiguousarray(model.inertia[b], dtype=float),
+            inv_mass=np.ascontiguousarray(model.inv_mass, dtype=float))
+        self._scratch = None  # TreeScratch of the last solve's batch (engine.core.tree_solve)
 
     def begin_step(self, js, model, state, h):
         """The bodies' metric M (W, tree bodies, 6, 6) at the state's
-        orientations: mass, world inertia and, with geometric stiffness, its
-        added inertia. Factors of earlier positions are dropped."""
+        orientations, mass and world inertia and, with geometric stiffness,
+        its added inertia (``engine.core.tree_solve.metric``); every joint
+        row then uses the stiffened inverse inertias (``js._iinv``). Factors
+        of earlier positions are dropped."""
         self._factored = None
         t = self.t
-        b = t.bodies
         W = state.orientation.shape[0]
-        M = np.zeros((W, t.n_bodies, 6, 6))
-        m = model.mass[b]
-        for k in range(3):
-            M[..., k, k] = m
-        I = world_inv_inertia(None, model.inertia[b], js._rot[:, b])
-        self.iinv = js._iinv
-        if self.geometric_weight is not None:
-            # Geometric stiffness (Andrews, Teichmann & Kry 2017; Tournier et al.
-            # 2015): a joint carrying force f at lever arm r resists turning the
-            # body with stiffness ~ |f| (|r|² I - r rᵀ)/|r|; its implicit-Euler
-            # share h² K is added to the body's inertia in the joint solve, which
-            # keeps light links between heavy loads from the explicit
-            # instability of the constraint-force direction.
-            # Loop-closing joints solved with the tree carry load too: without
-            # theirs, a 20 kg ball on a chain pinned at both ends gained 12 J in
-            # 3 s (benchmarks.stability chain_loop).
-            G = np.zeros((W, model.num_bodies, 3, 3))
+        nb = t.n_bodies
+        self.M, self.M_inv = np.empty((W, nb, 6, 6)), np.empty((W, nb, 6, 6))
+        geometric = self.geometric_weight is not None
+        J = state.joint_linear_impulse.shape[1]
+        if geometric:
+            # The loads of the tree joints and of the loop-closing joints solved
+            # with the tree (they carry load too).
             parts = [(self.joints, self.geometric_weight)]
             if js.loop_rows is not None and self.loop_geometric_weight is not None:
                 parts.append((js.loop_rows.joints, self.loop_geometric_weight))
-            for idx, weight in parts:
-                _, _, _, _, ra, rb = js.frames(state, idx)
-                lam = state.joint_linear_impulse[:, idx]
-                f = np.sqrt(dot(lam, lam))
-                if js._load_before is not None:
-                    # Within a step: the smaller of the loads before and after this
-                    # substep's biased solve (see JointSet.positions_moved).
-                    f = np.minimum(f, js._load_before[:, idx])
-                f = f * h * weight  # h² |F| = h |λ|
-                for body, r in ((js.parent[idx], ra), (js.child[idx], rb)):
-                    rn = np.sqrt(dot(r, r))
-                    g = f / np.maximum(rn, 1e-12)
-                    K = -r[..., :, None] * r[..., None, :]
-                    for k in range(3):
-                        K[..., k, k] += rn * rn
-                    np.add.at(G, (slice(None), body), g[..., None, None] * K)
-            # Capped at a few times the body's own inertia: the stiffness grows with
-            # the load, and the load needed to turn a heavier body grows with it.
-            G = G[:, b]
-            trI = I[..., 0, 0] + I[..., 1, 1] + I[..., 2, 2]
-            trG = G[..., 0, 0] + G[..., 1, 1] + G[..., 2, 2]
-            cap = js.settings.joint_geometric_stiffness_cap * trI
-            scale = np.where(trG > cap, cap / np.where(trG > cap, trG, 1.0), 1.0)
-            I = I + G * scale[..., None, None]
-            inv = js._iinv.copy()
-            # Bodies without added stiffness keep their inverse as computed (bit
-            # for bit, so a world reads the same stepped alone or in a batch).
-            inv[:, b] = np.where((trG > 0)[..., None, None], sym3_inverse(I), inv[:, b])
-            # Every joint row (warm start, limits, tree) uses the same metric.
-            js._iinv = self.iinv = inv
-        M[..., 3:, 3:] = I
-        self.M = M
-        # Its inverse, blockdiag(I/m, I_w⁻¹): the pivots of leaf bodies.
-        M_inv = np.zeros(M.shape)
-        M_inv[..., _DIAG3, _DIAG3] = model.inv_mass[b][:, None]
-        M_inv[..., 3:, 3:] = self.iinv[:, b]
-        self.M_inv = M_inv
+            idx = np.concatenate([p[0] for p in parts]).astype(np.int64)
+            weight = np.concatenate([np.broadcast_to(np.asarray(wt, dtype=float), (W, p.size)) for p, wt in parts],
+                                    axis=1)
+            g = js.geometry(state)
+            ra, rb = g.ra, g.rb
+            iinv_out = np.empty_like(js._iinv)
+        else:
+            idx, weight = np.zeros(0, dtype=np.int64), np.zeros((W, 0))
+            ra = rb = np.zeros((W, J, 3))
+            iinv_out = js._iinv
+        use_before = js._load_before is not None
+        load_before = js._load_before if use_before else np.zeros((W, J))
+        tree_solve.metric_batch(self.arrays, js._rot, js._iinv, idx, js.parent[idx], js.child[idx], self.joints.size,
+                                np.ascontiguousarray(weight), state.joint_linear_impulse, load_before, use_before, ra,
+                                rb, h, js.settings.joint_geometric_stiffness_cap, geometric, iinv_out, self.M,
+                                self.M_inv)
+        js._iinv = self.iinv = iinv_out
 
     def jacobians(self, js, state, use_bias, bias_rate, velocity=True, max_push_out=None,
                   max_angular_push_out=None, rows=None):
@@ -319,29 +272,13 @@ class _TreeSolver(_Rows):
         """The part of ``jacobians`` that depends on the positions alone:
         sides a, b, the joint frames and lever arms, the lock-row axes E
         (W, nj, 3, 3), the Jacobian blocks Ja, Jb (W, nj, 6, 6) and the row
-        mask (W, nj, 6)."""
-        idx = rows.joints
-        a, b, fpw, fcw, ra, rb = js.frames(state, idx)
-        shape = ra.shape
-        W, nj = shape[0], shape[1]
-        act = js._active(state, idx)
-        mask = np.empty((W, nj, 6))
-        mask[..., :3] = act[..., None]
-        mask[..., 3:] = act[..., None] * rows.ang_mask
-        # Angular lock rows: hinge (0, y, z) of the parent frame, fixed I, ball none.
-        E = np.zeros((W, nj, 3, 3))
-        if rows.hinges.size:
-            fh = fpw.take(rows.hinges, 1)
-            E[:, rows.hinges, 1] = quat_rotate(fh, EY)
-            E[:, rows.hinges, 2] = quat_rotate(fh, EZ)
-        E[:, rows.fixed] = np.eye(3)
-        # Side b: [[I, -[r_b]×], [0, E]]; side a: -[[I, -[r_a]×], [0, E]]; rows masked.
-        J = np.zeros((2, W, nj, 6, 6))
-        J[..., _DIAG3, _DIAG3] = 1.0
-        J[..., _SKEW_ROW, _SKEW_COL] = np.stack((rb, ra))[..., _SKEW_COMP] * _SKEW_SIGN
-        J[..., 3:, 3:] = E
-        J *= mask[..., None]
-        Jb, Ja = J[0], np.negative(J[1], out=J[1])
+        mask (W, nj, 6) (``engine.core.tree_solve.blocks``)."""
+        a, b, fpw, fcw, ra, rb = js.frames(state, rows.joints)
+        g = js.geometry(state)
+        W, nj = state.num_worlds, rows.joints.size
+        E, mask = np.empty((W, nj, 3, 3)), np.empty((W, nj, 6))
+        Ja, Jb = np.empty((W, nj, 6, 6)), np.empty((W, nj, 6, 6))
+        tree_solve.blocks_batch(rows.arrays, g.fpw, g.ra, g.rb, state.joint_broken, E, mask, Ja, Jb)
         return a, b, fpw, fcw, ra, rb, E, Ja, Jb, mask
 
     def right_hand_side(self, js, state, blocks, rows, use_bias, bias_rate, velocity=True, max_push_out=None,
@@ -352,202 +289,61 @@ class _TreeSolver(_Rows):
             max_push_out = js.settings.joint_max_push_out
         if max_angular_push_out is None:
             max_angular_push_out = js.settings.joint_max_angular_push_out
-        a, b, fpw, fcw, ra, rb, E, Ja, Jb, mask = blocks
+        a, b, _, _, _, _, E, Ja, Jb, mask = blocks
+        g = js.geometry(state)
         r = np.empty(mask.shape)
-        if velocity:
-            va, vb = state.velocity.take(a, 1), state.velocity.take(b, 1)
-            wa, wb = state.angular_velocity.take(a, 1), state.angular_velocity.take(b, 1)
-            r[..., :3] = vb + cross(wb, rb) - va - cross(wa, ra)
-            r[..., 3:] = mat_vec(E, wb - wa)
-        else:
-            r[...] = 0.0
-        if use_bias and np.any(bias_rate):
-            lin, ang = rows._position_errors(state, a, b, fpw, fcw, ra, rb)
-            r[..., :3] += clamp_norm(bias_rate * lin, max_push_out)
-            r[..., 3:] += mat_vec(E, clamp_norm(bias_rate * ang, max_angular_push_out))
-        r *= mask
+        # Without ``velocity`` the state may hold positions alone (the joint projection's).
+        v, w = (state.velocity, state.angular_velocity) if velocity else (state.position, state.position)
+        tree_solve.right_hand_side_batch(rows.arrays, E, mask, g.fpw, g.fcw, g.ra, g.rb, state.position,
+                                         state.orientation, v, w, bool(velocity),
+                                         bool(use_bias), _per_joint(bias_rate, mask.shape[0], mask.shape[1]),
+                                         float(max_push_out), float(max_angular_push_out), r)
         return a, b, Ja, Jb, mask, r
 
     def limit_rows(self, js, state, h, use_bias):
-        """Limit rows in the free angular slots of each tree joint: hinge slot 3
-        (twist), ball slots 3 (twist) and 4 (swing). The accumulated limit impulse
-        is taken off the velocities first, so the active-set solve finds the
-        whole (rigid, one-sided) limit impulse afresh.
-        Returns J rows (W, nj, 3, 3), rhs (W, nj, 3), sign σ (W, nj, 3) with
-        σ·λ >= 0 required, and which rows exist (W, nj, 3)."""
-        idx = self.joints
-        a, b = js.parent[idx], js.child[idx]
-        lo0, hi0, lo_finite, hi_finite, ball_col, exists_static = self._limit_constants
-        lam = state.joint_limit_impulse[:, idx]
-        Jt, twist, Js, Cs, twist_defined = js.limit_geometry(state, idx)
-        # Remove the warm-started limit impulse.
-        L = (lam[..., 0:1] - lam[..., 1:2]) * Jt + lam[..., 2:3] * Js
-        scatter_add(state.angular_velocity, self.scatter_a, mat_vec(js._iinv[:, a], L))
-        scatter_add(state.angular_velocity, self.scatter_b, -mat_vec(js._iinv[:, b], L))
-        state.joint_limit_impulse[:, idx] = 0.0
-        C_lo = np.where(lo_finite, twist - lo0, np.inf)
-        C_hi = np.where(hi_finite, hi0 - twist, np.inf)
-        # One twist row per joint: the bound the twist is heading for by the
-        # substep's end (a light limb can cross the whole range in a substep).
-        wrel = state.angular_velocity[:, b] - state.angular_velocity[:, a]
-        ahead = h * dot(Jt, wrel)
-        lower = C_lo + ahead <= C_hi - ahead
-        W, nj = twist.shape
-        rows = np.zeros((W, nj, 3, 3))
-        rows[..., 0, :] = Jt
-        rows[..., 1, :] = np.where(ball_col, Js, 0.0)
-        exists = exists_static & ~state.joint_broken.take(idx, 1)[..., None]
-        exists[..., 0] &= twist_defined
-        sigma = np.ones((W, nj, 3))
-        sigma[..., 0] = np.where(lower, 1.0, -1.0)
-        C = np.zeros((W, nj, 3))
-        C[..., 0] = np.where(exists[..., 0], np.minimum(C_lo, C_hi), 0.0)
-        C[..., 1] = np.where(exists[..., 1], Cs, 0.0)
-        r = mat_vec(rows, wrel)
-        # Speculative while open (C/h), rigid position bias when violated in
-        # the biased solve, none in the relax solve.
-        bias = np.where(C > 0, C / h, np.maximum(C / h, -js.settings.joint_max_angular_push_out) if use_bias else 0.0)
-        r = r + sigma * bias
-        r = np.where(exists, r, 0.0)
-        return rows, r, sigma, exists, lower
+        """The limit rows in the free angular slots of each tree joint (hinge
+        slot 3, the twist; ball slots 3 and 4, twist and swing), after taking
+        the accumulated limit impulse off the velocities
+        (``engine.core.tree_solve.limit_rows``). Returns the rows' axes
+        (W, nj, 3, 3), right-hand sides (W, nj, 3), sign σ (W, nj, 3) with
+        σ·λ >= 0 required, which rows exist (W, nj, 3) and whether the twist
+        row is the lower bound's (W, nj); the third slot never holds a row."""
+        W, nj = state.num_worlds, self.joints.size
+        lrows, lr = np.zeros((W, nj, 2, 3)), np.zeros((W, nj, 2))
+        sigma, exists, lower = np.ones((W, nj, 2)), np.zeros((W, nj, 2), dtype=bool), np.zeros((W, nj), dtype=bool)
+        tree_solve.limit_rows_batch(self.arrays, js.geometry(state), state.joint_broken, js._iinv,
+                                    state.angular_velocity, state.joint_limit_impulse, h, bool(use_bias),
+                                    float(js.settings.joint_max_angular_push_out), lrows, lr, sigma, exists, lower)
+        pad = ((0, 0), (0, 0), (0, 1))
+        return (np.pad(lrows, pad + ((0, 0),)), np.pad(lr, pad), np.pad(sigma, pad, constant_values=1.0),
+                np.pad(exists, pad), lower)
 
     def solve(self, js, model, state, bias_rate, mass_scale, impulse_scale, use_bias, h):
-        if not self.limits:
-            # Factored once per set of positions and metric: the relax solve of
-            # one substep and the biased solve of the next see the same
-            # positions (only velocities change between them), so the second
-            # reuses the first's factors, the same numbers (5 factorisations a
-            # step instead of 8 at 4 substeps). Factors of a solve before the
-            # positions moved are never reused: the relax solve on the biased
-            # solve's factors let a 100 kg ball on a light chain gain energy
-            # (benchmarks.stability ball_and_chain_far).
-            if self._factored is None or self._factored[0] is not state:
-                blocks = self.blocks(js, state, self)
-                self._factored = (state, blocks, self._factor(blocks[7], blocks[8], blocks[9]))
-            _, blocks, factors = self._factored
-            a, b, Ja, Jb, mask, r = self.right_hand_side(js, state, blocks, self, use_bias, bias_rate)
-            x = self._substitute(factors, r)
-            # The relax solve and rigid rows: no impulse term (its accumulated
-            # impulses are not gathered).
-            lam_term = 0.0 if np.ndim(impulse_scale) == 0 and impulse_scale == 0.0 else impulse_scale * self._lam(state)
-            d = (-mass_scale * x - lam_term) * mask
-            self._apply(js, model, state, a, b, Ja, Jb, d)
-            return
-        lrows, lr, sigma, exists, lower = self.limit_rows(js, state, h, use_bias)
-        if self.limit_candidates[0].size <= SCHUR_LIMIT_ROWS:
-            a, b, Ja, Jb, d, lim = self._limits_schur(js, state, lrows, lr, sigma, exists, bias_rate, mass_scale,
-                                                      impulse_scale, use_bias)
-        else:
-            a, b, Ja, Jb, d, lim = self._limits_refactored(js, state, lrows, lr, sigma, exists, bias_rate,
-                                                           mass_scale, impulse_scale, use_bias)
-        self._apply(js, model, state, a, b, Ja, Jb, d)
-        # Store: twist row impulse is λ_lo - λ_hi, swing row λ_swing.
-        idx = self.joints
-        tw = d[..., 3] * lim[..., 3]
-        state.joint_limit_impulse[:, idx, 0] = np.where(lower, tw, 0.0)
-        state.joint_limit_impulse[:, idx, 1] = np.where(lower, 0.0, -tw)
-        state.joint_limit_impulse[:, idx, 2] = d[..., 4] * lim[..., 4]
-
-    def _limits_schur(self, js, state, lrows, lr, sigma, exists, bias_rate, mass_scale, impulse_scale, use_bias):
-        """The tree solve with the limit rows of ``limit_rows`` by their active
-        set (``_active_set``), on one factorisation per set of positions.
-        Returns a, b, Ja, Jb, the impulses d (W, nj, 6) and the limit-taken
-        slots lim (W, nj, 6)."""
-        # One factorisation: that of the system with every existing limit row
-        # in its joint's free slot (positions alone, so the relax solve of one
-        # substep and the biased solve of the next share it, as above), and
-        # B = A⁻¹ on the limit rows (A = J M⁻¹ Jᵀ). Dropping the rows D (λ_D = 0,
-        # their equations gone) is solving with their right-hand side moved by
-        # δ_D, where B_DD δ_D = -(B r)_D: the other rows' equations hold as they
-        # were. The same λ as factoring the active rows alone, to rounding (the
-        # Schur complement update of active-set QP methods, Nocedal & Wright
-        # 2006, ch. 16).
-        if self._factored is None or self._factored[0] is not state:
-            self._factored = (state, *self._limit_factors(js, state, lrows, exists))
-        _, blocks, Ja, Jb, factors, B_cols, B_lim = self._factored
-        a, b, _, _, mask, r = self.right_hand_side(js, state, blocks, self, use_bias, bias_rate)
-        r[..., 3:5] = np.where(exists[..., :2], lr[..., :2], r[..., 3:5])
-        x0 = self._substitute(factors, r)
-        cj, cs = self.limit_candidates
-        x0_lim = x0[:, cj, 3 + cs]  # (W, k)
-        exists_c = exists[:, cj, cs]
-        W, nj = mask.shape[:2]
-
-        def solve_for(active):
-            drop = exists_c & ~active[:, cj, cs]
-            if not drop.any():
-                return x0, Ja, Jb
-            Bd = np.where(drop[:, :, None] & drop[:, None, :], B_lim, np.eye(cj.size))
-            rhs = np.where(drop, -x0_lim, 0.0)[..., None]
-            try:
-                delta = np.linalg.solve(Bd, rhs)
-            except np.linalg.LinAlgError:  # a singular B_DD (degenerate rows): least squares
-                delta = np.matmul(np.linalg.pinv(Bd), rhs)
-            # Worlds dropping nothing keep x0 as it is (their bits never depend on the others').
-            x = np.where(drop.any(axis=-1)[:, None, None], x0 + np.matmul(B_cols, delta).reshape(W, nj, 6), x0)
-            return x, Ja, Jb  # rows of dropped slots carry d = 0 (mask and lim are 0 there)
-
-        return (a, b, *self._active_set(js, state, a, b, mask, lrows, lr, sigma, exists, mass_scale, impulse_scale,
-                                        solve_for))
-
-    def _limits_refactored(self, js, state, lrows, lr, sigma, exists, bias_rate, mass_scale, impulse_scale,
-                           use_bias):
-        """``_limits_schur`` for trees with many limit rows: the system of the
-        active rows factored afresh in each pass (cheaper once B's columns
-        cost more than the passes' factorisations: ``SCHUR_LIMIT_ROWS``)."""
-        a, b, Ja, Jb, mask, r = self.jacobians(js, state, use_bias, bias_rate)
-
-        def solve_for(active):
-            Ja2, Jb2, m2, r2 = _in_limit_slots(active, lrows, lr, Ja, Jb, mask, r)
-            return self._factor_solve(Ja2, Jb2, m2, r2, ball_rows=False), Ja2, Jb2
-
-        return (a, b, *self._active_set(js, state, a, b, mask, lrows, lr, sigma, exists, mass_scale, impulse_scale,
-                                        solve_for))
-
-    def _active_set(self, js, state, a, b, mask, lrows, lr, sigma, exists, mass_scale, impulse_scale, solve_for):
-        """Active set over the limit rows: start from the rows the current
-        velocities would violate, drop rows that pull, add rows the solve's
-        impulses would drive past their limit. ``solve_for(active)`` gives x
-        = A⁻¹ r over the equality rows and the active limit rows, and the
-        Jacobian blocks it used. Returns Ja, Jb, d, lim."""
-        lam_eq = 0.0 if np.ndim(impulse_scale) == 0 and impulse_scale == 0.0 else impulse_scale * self._lam(state)
-        active = exists & (sigma * lr < 0)
-        for _ in range(self.active_set_passes):
-            x, Ja, Jb = solve_for(active)
-            lim = np.zeros(x.shape)
-            lim[..., 3:5] = active[..., :2]  # rows taken by limits (free slots of the joint): rigid, whole λ
-            d = (-mass_scale * x - lam_eq) * mask - x * lim
-            bad = active[..., :2] & (sigma[..., :2] * -x[..., 3:5] < 0)  # limit impulses λ = -x that pull
-            after = self._rows_after(js, state, a, b, Ja, Jb, d, lrows, lr)
-            add = exists[..., :2] & ~active[..., :2] & (sigma[..., :2] * after[..., :2] < -ACTIVE_SET_TOLERANCE)
-            if not (bad.any() or add.any()):
-                break
-            # Drop pulling rows first; add violated rows once none pulls.
-            bad_joint = bad.any(axis=-1, keepdims=True)
-            active[..., :2] = (active[..., :2] & ~bad) | (add & ~bad_joint)
-        return Ja, Jb, d, lim
-
-    def _limit_factors(self, js, state, lrows, exists):
-        """For ``solve`` with limits: the position blocks, the Jacobian blocks
-        Ja, Jb with every existing limit row (``limit_rows``) in its slot, the
-        factors of that system, and B = A⁻¹ on the limit rows: its columns
-        B_cols (W, 6 nj, k) and the limit rows' block B_lim (W, k, k), k the
-        tree's possible limit rows (``limit_candidates``)."""
-        blocks = self.blocks(js, state, self)
-        Ja, Jb, mask = _in_limit_slots(exists, lrows, None, *blocks[7:10])
-        factors = self._factor(Ja, Jb, mask, ball_rows=False)
-        cj, cs = self.limit_candidates
-        W, nj, k = mask.shape[0], mask.shape[1], cj.size
-        R = np.zeros((W, nj, 6, k))
-        R[:, cj, 3 + cs, np.arange(k)] = 1.0
-        X = self._substitute_columns(factors, R)
-        return blocks, Ja, Jb, factors, X.reshape(W, nj * 6, k), X[:, cj, 3 + cs]
-
-    def _rows_after(self, js, state, a, b, Ja, Jb, d, lrows, lr):
-        """Limit row values (lr is at the current velocities) after the
-        impulses Jᵀd: lr + J_lim (Δω_b - Δω_a)."""
-        dw = mat_vec(self.iinv, self._body_impulses(Ja, Jb, d)[..., 3:])
-        return lr + mat_vec(lrows, dw[:, b] - dw[:, a])
+        """One solve of the tree rows (``engine.core.tree_solve.solve_world``):
+        the equality rows by the soft step (bias_rate, mass_scale,
+        impulse_scale: scalars or (W, nj, 1)), and with limits in the tree the
+        limit rows by their active set. The blocks and factors are built once
+        per set of positions and metric: the relax solve of one substep and the
+        biased solve of the next see the same positions (only the velocities
+        change between them), so the second reuses the first's. Factors of a
+        solve before the positions moved are never reused: the relax solve on
+        the biased solve's factors let a 100 kg ball on a light chain gain
+        energy (benchmarks.stability ball_and_chain_far)."""
+        W, nj, k = state.num_worlds, self.joints.size, self.limit_candidates[0].size
+        S = self._scratch
+        if S is None or S.mask.shape[0] != W:
+            S = self._scratch = tree_solve.empty_scratch(W, nj, self.t.n_nodes, k)
+            self._factored = None
+        refactor = self._factored is not state
+        s = js.settings
+        tree_solve.solve_batch(self.arrays, self.layout, js.geometry(state), state.joint_broken, js._iinv, self.M,
+                               self.M_inv, state.position, state.orientation, state.velocity, state.angular_velocity,
+                               state.joint_linear_impulse, state.joint_angular_impulse, state.joint_limit_impulse,
+                               _per_joint(bias_rate, W, nj), _per_joint(mass_scale, W, nj),
+                               _per_joint(impulse_scale, W, nj), bool(use_bias), float(h), float(s.joint_max_push_out),
+                               float(s.joint_max_angular_push_out), bool(self.limits), k <= SCHUR_LIMIT_ROWS,
+                               int(self.active_set_passes), refactor, S)
+        self._factored = state
 
     def _body_impulses(self, Ja, Jb, d, rows=None):
         """Jᵀ d summed per body: (W, num_bodies, 6) linear and angular impulses."""
@@ -726,3 +522,27 @@ class _TreeSolver(_Rows):
         X = np.empty(R.shape)
         tree_kernels.substitute_batch(self.layout, Dinv, L, np.ascontiguousarray(R, dtype=np.float64), X)
         return X  # (J M⁻¹ Jᵀ)⁻¹ R per joint
+
+
+def _row_arrays(joints, kind, parent, child, ang_mask, eq_mask):
+    """The ``TreeRows`` of a list of joints (``engine.core.tree_solve``) without
+    limits or bodies (``_TreeSolver`` fills those for the tree's joints)."""
+    joints = np.asarray(joints, dtype=np.int64)
+    n = joints.size
+    none = np.zeros(n, dtype=bool)
+    return tree_solve.TreeRows(
+        joint=joints, a=np.asarray(parent, dtype=np.int64), b=np.asarray(child, dtype=np.int64),
+        hinge=np.ascontiguousarray(kind == HINGE), fixed=np.ascontiguousarray(kind == FIXED),
+        ball=np.ascontiguousarray(kind == BALL), ang_mask=np.ascontiguousarray(ang_mask, dtype=float),
+        eq_mask=np.ascontiguousarray(eq_mask, dtype=float), lo=np.zeros(n), hi=np.zeros(n), lo_finite=none,
+        hi_finite=none, limit_exists=np.zeros((n, 2), dtype=bool), cand_joint=np.zeros(0, dtype=np.int64),
+        cand_slot=np.zeros(0, dtype=np.int64), bodies=np.zeros(0, dtype=np.int64), mass=np.zeros(0),
+        inertia=np.zeros((0, 3)), inv_mass=np.zeros(0))
+
+
+def _per_joint(x, W, nj):
+    """A softness term (a scalar, or (W, nj) or (W, nj, 1) per joint) as a contiguous (W, nj) array."""
+    a = np.asarray(x, dtype=float)
+    if a.ndim == 3:
+        a = a[..., 0]
+    return np.ascontiguousarray(np.broadcast_to(a, (W, nj)))

@@ -132,11 +132,6 @@ class JointSet:
             elif settings.limits_in_tree:
                 lim_in_tree = in_tree
                 self.tree.limits = bool((has_limit | has_swing)[self.tree.joints].any())
-                # The tree's possible limit rows: (tree joint, slot) with slot 0 twist, 1 swing.
-                twist_j = np.flatnonzero(self.tree.limit_exists[:, 0])
-                swing_j = np.flatnonzero(self.tree.limit_exists[:, 1])
-                self.tree.limit_candidates = (np.concatenate((twist_j, swing_j)),
-                                              np.repeat([0, 1], (twist_j.size, swing_j.size)))
         # Loop-closing joints solved with the tree (``_TreeSolver.solve_with_loops``),
         # unless their rows stay Gauss-Seidel; not with limits in the tree (the
         # loop solve has no active set). With rigid tree joints too: the
