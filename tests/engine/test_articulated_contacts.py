@@ -8,6 +8,7 @@ import numpy as np
 import engine as e
 from benchmarks import scenarios, scenes
 from engine.articulated_contacts import ArticulatedContacts
+from engine.core import articulated as kernels
 
 #: Rigid joints, limits in the tree and a 0.2 mm post-stabilisation slop at the
 #: default 4 substeps: the joints of ACCURATE without its 16 substeps.
@@ -54,16 +55,16 @@ def test_response_keeps_every_joint_and_gives_a_delassus_matrix():
     assert not art.empty and art.rows.size >= 2
     tree = joints.tree
     a, b, _, _, _, _, _, Ja, Jb, mask = tree.blocks(joints, state, tree)
-    Z = art.Z_columns.transpose(0, 2, 1).reshape(art.W, art.N, 6, -1)
+    S = art.arrays
+    Z = S.Z.reshape(-1, model.num_bodies, 6).transpose(1, 2, 0)[None]  # (1, N, 6, columns)
     joint_rows = (np.matmul(Ja, Z[:, a]) + np.matmul(Jb, Z[:, b])) * mask[..., None]
     assert np.abs(joint_rows).max() <= 1e-9 * np.abs(Z).max()
-    v = art.valid[0]
-    A = art.A_by_column[:, 0].T[np.ix_(v, v)]
+    A = art.delassus(0)
     assert np.abs(A - A.T).max() <= 1e-12 * np.abs(A).max()
     assert np.linalg.eigvalsh(0.5 * (A + A.T)).min() >= -1e-9 * np.abs(A).max()
-    assert art.valid.sum() == 3 * rows.valid[art.rows].sum()  # a normal and two friction columns per valid point
-    single = rows.mn[art.pt_row, art.pt_p]  # one body's normal effective masses of the valid points
-    articulated = art.m[art.pt_w, art.pt_col]
+    assert S.m.size == 3 * rows.valid[art.rows].sum()  # a normal and two friction columns per valid point
+    single = rows.mn[S.pt_row, S.pt_slot]  # one body's normal effective masses of the valid points
+    articulated = S.m[0::3]
     assert np.all(articulated >= single * (1 - 1e-9))
     assert np.any(articulated > 2.0 * single)  # a foot on the ground carries more than the foot
 
@@ -116,8 +117,8 @@ def test_scenes_without_articulations_step_as_without_the_setting():
 def test_batch_replays_bit_for_bit():
     """Two replays of one batch are identical, and a world stepped alone is
     the same world in the batch bit for bit, though its contact columns are
-    padded to the batch's largest count there (A and the column velocities
-    are summed in an order the padding does not change)."""
+    packed among the other worlds' there (every sum of a world runs over its
+    own columns, in an order of its own)."""
     case = scenes.ragdoll_drops()
     model = case.model.with_settings(articulated_contacts=True, **RIGID)
     runs = []
@@ -137,92 +138,134 @@ def test_batch_replays_bit_for_bit():
         assert np.array_equal(alone.arrays[key][0], runs[0].arrays[key][2]), key
 
 
-def _sweeps(A, u, lam, gain, bias, isc_lam, one_world, points=None):
-    """One sweep of ArticulatedContacts on given arrays (W, C, C) and (W, C),
-    by the batch path or (W = 1) the Python-float path; returns u, lam,
-    u_before. ``points``: each world's valid points (most first; default
-    all C / 3), the columns beyond them padding."""
-    W, C = u.shape
-    points = np.full(W, C // 3) if points is None else np.asarray(points)
-    ac = object.__new__(ArticulatedContacts)
-    ac.A_by_column = A.transpose(1, 0, 2).copy()  # A[w, i] is column i
-    ac.valid, ac.normals = np.arange(C)[None, :] < 3 * points[:, None], np.arange(0, C, 3)
-    ac.worlds_at = [int((points > q).sum()) for q in range(C // 3)]  # the worlds with point q
-    ac.m, ac.mu = np.where(np.isfinite(gain), -gain, 0.0), np.full((W, C), 0.6)
-    ac.skip_unchanged = bool(np.isfinite(A).all())
-    ac._one_world_constants = (ac.m[0].tolist(), ac.mu[0].tolist(), ac.normals.tolist())
-    u, lam = u + 0.0, lam.copy()
-    sweep = ac._sweep_one_world if one_world else ac._sweep_batch
-    u_before = sweep(u, lam, lam.copy(), gain, bias, isc_lam)
+def _reference_sweep(A, u, lam, gain, bias, isc_lam, mu):
+    """One projected Gauss-Seidel sweep written out plainly on one world's
+    arrays (A (k, k), the rest (k,); gain, bias, isc_lam read at the normal
+    columns 0, 3, ...): the normal columns, then the friction pairs in the
+    Coulomb disc |λ_t| <= μ λ_n, u updated by every column's change (no
+    column skipped). Returns u, lam, u_before (k / 3,)."""
+    u, lam, start = u + 0.0, lam.copy(), lam.copy()
+    normals = range(0, u.size, 3)
+    u_before = np.empty(u.size // 3)
+    m = np.where(np.isfinite(gain), -gain, 0.0)
+    for i in normals:
+        u_before[i // 3] = u[i]
+        d = gain[i] * (u[i] + bias[i])
+        if isc_lam is not None:
+            d = d - isc_lam[i]
+        new = np.maximum(start[i] + d, 0.0)
+        u += A[:, i] * (new - start[i])
+        lam[i] = new
+    for i in normals:
+        j, k = i + 1, i + 2
+        t1 = lam[j] - m[j] * u[j]
+        t2 = lam[k] - m[k] * u[k]
+        limit = mu * lam[i]
+        mag = math.sqrt(t1 * t1 + t2 * t2)
+        scale = limit / max(mag, 1e-30) if mag > limit else 1.0
+        t1, t2 = t1 * scale, t2 * scale
+        u += A[:, j] * (t1 - lam[j]) + A[:, k] * (t2 - lam[k])
+        lam[j], lam[k] = t1, t2
     return u, lam, u_before
 
 
+def _sweeps(worlds, mu=0.6):
+    """One sweep of the solve's kernel (``engine.core.articulated._sweep``) of
+    each world of one batch packed from ``worlds``, a list of (A (k, k), u,
+    lam, gain, bias, isc_lam or None) over each world's k columns (gain, bias
+    and isc_lam read at the normal columns; the effective masses are -gain;
+    isc_lam = 0.1 λ: the soft rows' impulse term); returns [(u, lam, u_before)]."""
+    k = np.array([len(x[1]) for x in worlds])
+    W, C, P = k.size, int(k.sum()), int(k.sum()) // 3
+    pt_start = np.r_[0, np.cumsum(k // 3)].astype(np.int64)
+    S = kernels.ArticulatedArrays(
+        held=np.arange(W), pt_start=pt_start, pt_row=np.zeros(P, dtype=np.int64),
+        pt_slot=np.zeros(P, dtype=np.int64), row_start=np.zeros(W + 1, dtype=np.int64),
+        rows=np.zeros(0, dtype=np.int64), tree_bodies=np.zeros(0, dtype=np.int64), M=np.zeros((W, 0, 6, 6)),
+        body=np.zeros(C, dtype=np.int64), J=np.zeros((C, 6)), Z=np.zeros((C, 0)),
+        A=np.concatenate([A.T.ravel() for A, *_ in worlds]), a_start=np.r_[0, np.cumsum(k * k)].astype(np.int64),
+        m=np.concatenate([np.where(np.isfinite(g), -g, 0.0) for _, _, _, g, _, _ in worlds]),
+        mu=np.full(P, mu), finite=np.array([bool(np.isfinite(A).all()) for A, *_ in worlds]))
+    out = []
+    for w, (A, u, lam, gain, bias, isc_lam) in enumerate(worlds):
+        u, lam = u + 0.0, lam.copy()
+        u_before = np.empty(u.size // 3)
+        soft = isc_lam is not None
+        isc = np.full(u.size // 3, 0.1) if soft else np.zeros(u.size // 3)
+        kernels._sweep(S, w, u, lam, lam.copy(), np.ascontiguousarray(gain[::3]), np.ascontiguousarray(bias[::3]),
+                       isc, soft, u_before)
+        out.append((u, lam, u_before))
+    return out
+
+
+def _random_world(rng, c, overflow=False):
+    """Random sweep inputs of one world with c columns: A = R Rᵀ / c + I, exact
+    zeros in u and λ, separating points (bias 5: their λ_n stays 0) and, with
+    ``overflow``, an infinite entry of A in a separated point's column (so its
+    change is an exact 0: inf · 0 must still reach u, as NaN)."""
+    R = rng.normal(size=(c, c))
+    A = R @ R.T / c + np.eye(c)
+    u = rng.normal(size=c) * rng.integers(0, 2, size=c)
+    lam = np.abs(rng.normal(size=c)) * rng.integers(0, 2, size=c)
+    gain = -1.0 / np.diag(A)
+    bias = rng.normal(size=c) * 0.3
+    bias[::3] = np.where(rng.random(c // 3) < 0.4, 5.0, bias[::3])
+    lam[::3] = np.where(bias[::3] == 5.0, 0.0, lam[::3])
+    if overflow:
+        sep = np.flatnonzero(bias[::3] == 5.0)
+        if sep.size:
+            A[0, 3 * sep[0]] = np.inf  # row 0 of column 3 sep[0]
+    return A, u, lam, gain, bias
+
+
 def test_a_world_alone_sweeps_as_in_a_batch_bit_for_bit_even_with_non_finite_A():
-    """The Python-float sweep of a batch of one world against the numpy sweep
-    of the same world among others: the same u, impulses and normal
-    velocities, bit for bit (zero signs included), over random columns with
-    unchanged (separated) points, and with an infinite entry of A in a
-    column whose impulse does not change: inf · 0 must still reach u (NaN),
-    alone and in the batch, not be skipped away alone."""
+    """The solve's sweep of a world alone, of the same world packed among
+    others, and the sweep written out plainly (``_reference_sweep``, which
+    skips no column): the same u, impulses and normal velocities, bit for
+    bit (zero signs included), over random columns with unchanged
+    (separated) points, and with an infinite entry of A in a column whose
+    impulse does not change: inf · 0 must still reach u (NaN), alone and in
+    the batch, not be skipped away; the batch's other worlds are not
+    touched by it."""
     rng = np.random.default_rng(5)
     overflowed = 0
     for trial in range(40):
-        W, C = 3, 3 * int(rng.integers(1, 8))
-        R = rng.normal(size=(W, C, C))
-        A = np.einsum("wij,wkj->wik", R, R) / C + np.eye(C)
-        u = rng.normal(size=(W, C)) * rng.integers(0, 2, size=(W, C))  # exact zeros too
-        lam = np.abs(rng.normal(size=(W, C))) * rng.integers(0, 2, size=(W, C))
-        gain = -1.0 / np.einsum("wcc->wc", A)
-        bias = rng.normal(size=(W, C)) * 0.3
-        bias[:, ::3] = np.where(rng.random((W, C // 3)) < 0.4, 5.0, bias[:, ::3])  # separating: λ stays 0
-        lam[:, ::3] = np.where(bias[:, ::3] == 5.0, 0.0, lam[:, ::3])
-        isc_lam = None if trial % 2 else 0.1 * lam
-        if trial % 5 == 4:  # an overflowed entry in world 0's column of a separated point
-            sep = np.flatnonzero(bias[0, ::3] == 5.0)
-            if sep.size:
-                A[0, 3 * sep[0], 0] = np.inf
+        worlds = []
+        for w in range(3):
+            A, u, lam, gain, bias = _random_world(rng, 3 * int(rng.integers(1, 8)), overflow=w == 0 and trial % 5 == 4)
+            worlds.append((A, u, lam, gain, bias, None if trial % 2 else 0.1 * lam))
         with np.errstate(invalid="ignore"):
-            u_b, lam_b, before_b = _sweeps(A, u, lam, gain, bias, isc_lam, one_world=False)
-            u_a, lam_a, before_a = _sweeps(A[:1], u[:1], lam[:1], gain[:1], bias[:1],
-                                           None if isc_lam is None else isc_lam[:1], one_world=True)
-        assert u_a[0].tobytes() == u_b[0].tobytes()
-        assert lam_a[0].tobytes() == lam_b[0].tobytes()
-        assert before_a[0, ::3].tobytes() == before_b[0, ::3].tobytes()  # read at the normal columns only
-        if not np.isfinite(A[0]).all():
+            batch = _sweeps(worlds)
+            for w in range(3):
+                alone = _sweeps(worlds[w:w + 1])[0]
+                A, u, lam, gain, bias, isc_lam = worlds[w]
+                reference = _reference_sweep(A, u, lam, gain, bias, isc_lam, 0.6)
+                for got in (batch[w], alone):
+                    for x, y in zip(got, reference):
+                        assert x.tobytes() == y.tobytes()
+        if not np.isfinite(worlds[0][0]).all():
             overflowed += 1
-            assert np.isnan(u_a[0]).any() and np.isnan(u_b[0]).any()
+            assert np.isnan(batch[0][0]).any()
+            assert np.isfinite(batch[1][0]).all() and np.isfinite(batch[2][0]).all()
     assert overflowed >= 3
 
 
 def test_worlds_with_fewer_points_sweep_as_alone_bit_for_bit():
-    """Worlds of a batch with 5, 3 and 1 valid points (most first, as
-    ArticulatedContacts holds them): each column's updates run on the worlds
-    that have it, and every world ends its sweep as it does alone, with its
-    own columns only (the Python-float path), bit for bit; the padding keeps
-    impulse 0."""
+    """Worlds of a batch with 5, 3 and 1 valid points, packed without padding:
+    every world ends its sweep as it does alone and as the plain sweep
+    (``_reference_sweep``) gives, bit for bit."""
     rng = np.random.default_rng(11)
-    points = np.array([5, 3, 1])
-    W, C = points.size, 3 * points.max()
     for trial in range(20):
-        A, u, lam = np.zeros((W, C, C)), np.zeros((W, C)), np.zeros((W, C))
-        gain, bias = np.zeros((W, C)), np.zeros((W, C))
-        for w, c in enumerate(3 * points):
-            R = rng.normal(size=(c, c))
-            A[w, :c, :c] = R @ R.T / c + np.eye(c)
-            u[w, :c] = rng.normal(size=c)
-            lam[w, :c] = np.abs(rng.normal(size=c)) * rng.integers(0, 2, size=c)
-            gain[w, :c] = -1.0 / np.diag(A[w, :c, :c])
-            bias[w, :c] = rng.normal(size=c) * 0.3
-        isc_lam = None if trial % 2 else 0.1 * lam
-        u_b, lam_b, before_b = _sweeps(A, u, lam, gain, bias, isc_lam, one_world=False, points=points)
-        assert not lam_b[1, 9:].any() and not lam_b[2, 3:].any()
-        for w, c in enumerate(3 * points):
-            alone = (A[w:w + 1, :c, :c], u[w:w + 1, :c], lam[w:w + 1, :c], gain[w:w + 1, :c], bias[w:w + 1, :c],
-                     None if isc_lam is None else isc_lam[w:w + 1, :c])
-            u_a, lam_a, before_a = _sweeps(*alone, one_world=True)
-            assert u_a[0].tobytes() == u_b[w, :c].tobytes()
-            assert lam_a[0].tobytes() == lam_b[w, :c].tobytes()
-            assert before_a[0, ::3].tobytes() == before_b[w, :c:3].tobytes()
+        worlds = []
+        for c in (15, 9, 3):
+            A, u, lam, gain, bias = _random_world(rng, c)
+            worlds.append((A, u, lam, gain, bias, None if trial % 2 else 0.1 * lam))
+        batch = _sweeps(worlds)
+        for w in range(3):
+            alone = _sweeps(worlds[w:w + 1])[0]
+            reference = _reference_sweep(*worlds[w], 0.6)
+            for x, y, z in zip(batch[w], alone, reference):
+                assert x.tobytes() == y.tobytes() == z.tobytes()
 
 
 def test_articulations_closed_by_loops_keep_body_rows_and_the_others_do_not():
@@ -285,10 +328,11 @@ def test_contacts_read_the_velocities_the_joint_solve_leaves():
     assert np.abs(J_t @ Pv).max() < 1e-9 * np.abs(v).max()
     projected = np.zeros((N, 6))
     projected[tree.t.bodies] = Pv.reshape(-1, 6)
-    expected = np.einsum("ck,ck->c", art.J[0], projected[art.body[0]])
-    raw = np.einsum("ck,ck->c", art.J[0], np.concatenate((state.velocity[0], state.angular_velocity[0]),
-                                                          axis=-1)[art.body[0]])
-    got = art._velocities(state)[0]
+    S = art.arrays
+    expected = np.einsum("ck,ck->c", S.J, projected[S.body])
+    raw = np.einsum("ck,ck->c", S.J, np.concatenate((state.velocity[0], state.angular_velocity[0]),
+                                                     axis=-1)[S.body])
+    got = art.velocities(state)
     scale = np.abs(expected).max()
     assert np.abs(got - expected).max() <= 1e-9 * scale
     assert np.abs(raw - expected).max() > 0.1 * scale  # the unprojected reading differs: the test can fail
@@ -297,31 +341,30 @@ def test_contacts_read_the_velocities_the_joint_solve_leaves():
 def test_column_velocities_match_the_joint_solve_across_worlds_with_uneven_contacts():
     """Three hinged boxes (no limits: the joint solve is the projection P
     alone) in three worlds, the second lifted clear of the ground, so that
-    the worlds' column counts differ and the columns are padded: with random
-    velocities, each world's columns read what J_c gives after the joint
-    solve itself (rigid rows, no bias). The lifted world has no columns at
-    all: the response holds only the worlds with a valid point, the one
-    with more points first (the first world's middle box is lifted a little
-    too, so its columns are fewer and padded)."""
+    the worlds' column counts differ: with random velocities, each world's
+    columns, packed world by world, read what J_c gives after the joint solve
+    itself (rigid rows, no bias). The lifted world has no columns at all
+    (the first world's middle box is lifted a little too, so its columns are
+    fewer than the third's)."""
     model = scenarios.hinged_boxes(masses=(1.0, 2.0, 3.0), articulated_contacts=True, **RIGID).build()
     state = model.initial_state(3)
     state.position[1, 1:, 2] += 1.0
     state.position[0, 1, 2] += 0.5
     _, joints, art = _prepared(model, state)
     assert not art.empty
-    assert art.worlds.tolist() == [2, 0] and min(art.worlds_at) < art.W
-    counts = art.valid.sum(axis=1)
-    assert counts[0] > counts[1] > 0
+    S = art.arrays
+    counts = 3 * np.diff(S.pt_start)  # columns per world
+    assert counts[2] > counts[0] > 0 and counts[1] == 0
     rng = np.random.default_rng(1)
     state.velocity[:, 1:] += rng.normal(0.0, 0.5, state.velocity[:, 1:].shape)
     state.angular_velocity[:, 1:] += rng.normal(0.0, 3.0, state.angular_velocity[:, 1:].shape)
-    got = art._velocities(state)
-    world = art.worlds[:, None]  # the batch world of each of the response's worlds
-    raw = np.einsum("wck,wck->wc", art.J, np.concatenate((state.velocity, state.angular_velocity),
-                                                          axis=-1)[world, art.body])
+    got = art.velocities(state)
+    world = np.repeat(np.arange(3), counts)  # the world of each column
+    raw = np.einsum("ck,ck->c", S.J, np.concatenate((state.velocity, state.angular_velocity),
+                                                     axis=-1)[world, S.body])
     joints.solve(model, state, model.settings.dt / model.settings.substeps, False)
     v = np.concatenate((state.velocity, state.angular_velocity), axis=-1)
-    expected = np.einsum("wck,wck->wc", art.J, v[world, art.body])
+    expected = np.einsum("ck,ck->c", S.J, v[world, S.body])
     scale = np.abs(expected).max()
     assert np.abs(got - expected).max() <= 1e-9 * scale
     assert np.abs(raw - expected).max() > 0.1 * scale
@@ -343,3 +386,62 @@ def test_more_sweeps_converge_on_the_soft_contacts_of_a_resting_chain():
 
     one, eight = depth(1), depth(8)
     assert 1e-4 < eight < 0.9 * one < 3e-4
+
+
+def test_response_matches_dense_linear_algebra_and_a_world_alone_the_batch():
+    """Z and A of the kernels against the textbook formulas in dense linear
+    algebra, per world: Z = M⁻¹J_cᵀ - M⁻¹J_tᵀ (J_t M⁻¹ J_tᵀ)⁻¹ J_t M⁻¹J_cᵀ,
+    A = J_c Z, m = 1 / A_ii (to rounding: the kernels substitute through the
+    tree's block factors), on three hinged boxes in three worlds with uneven
+    contacts; and each world's Z, A and m computed alone equal the batch's
+    bit for bit."""
+    model = scenarios.hinged_boxes(masses=(1.0, 2.0, 3.0), articulated_contacts=True, **RIGID).build()
+    state = model.initial_state(3)
+    state.position[1, 1:, 2] += 1.0
+    state.position[0, 1, 2] += 0.5
+    state.orientation[2, 2] = [math.cos(0.1), math.sin(0.1), 0.0, 0.0]  # a tilted box: fewer, uneven points
+    batch_state = state.copy()
+    _, joints, art = _prepared(model, batch_state)
+    S = art.arrays
+    tree = joints.tree
+    a, b, _, _, _, _, _, Ja, Jb, mask = tree.blocks(joints, batch_state, tree)
+    N = model.num_bodies
+    cols = (6 * tree.t.bodies[:, None] + np.arange(6)).ravel()  # the tree's bodies' coordinates
+    checked = 0
+    for w in range(3):
+        c = art.columns(w)
+        if c.stop == c.start:
+            continue
+        J_t = np.zeros((a.size * 6, N * 6))
+        for j in range(a.size):
+            for r in np.flatnonzero(mask[w, j]):
+                J_t[6 * j + r, 6 * a[j]:6 * a[j] + 6] += Ja[w, j, r]
+                J_t[6 * j + r, 6 * b[j]:6 * b[j] + 6] += Jb[w, j, r]
+        J_t = J_t[np.abs(J_t).sum(axis=1) > 0][:, cols]
+        J_c = np.zeros((c.stop - c.start, N * 6))
+        for i, col in enumerate(range(c.start, c.stop)):
+            J_c[i, 6 * S.body[col]:6 * S.body[col] + 6] = S.J[col]
+        J_c = J_c[:, cols]
+        M = np.zeros((cols.size, cols.size))
+        for k in range(tree.t.bodies.size):
+            M[6 * k:6 * k + 6, 6 * k:6 * k + 6] = S.M[w, k]  # the batch's metric
+        U = np.linalg.solve(M, J_c.T)
+        MJt = np.linalg.solve(M, J_t.T)
+        Z = U - MJt @ np.linalg.solve(J_t @ MJt, J_t @ U)
+        got = S.Z[c]
+        assert np.abs(got[:, cols] - Z.T).max() <= 1e-12 * np.abs(Z).max()
+        assert not np.delete(got, cols, axis=1).any()  # the ground does not move
+        A = J_c @ Z
+        assert np.abs(art.delassus(w) - A).max() <= 1e-12 * np.abs(A).max()
+        assert np.allclose(S.m[c], 1.0 / np.diag(A), rtol=1e-12, atol=0.0)
+        # The same world alone.
+        alone = model.initial_state(1)
+        for key in ("position", "orientation", "velocity", "angular_velocity"):
+            alone.arrays[key][0] = state.arrays[key][w]
+        _, _, art1 = _prepared(model, alone)
+        S1 = art1.arrays
+        assert S1.Z.tobytes() == got.tobytes()
+        assert art1.delassus(0).tobytes() == art.delassus(w).tobytes()
+        assert S1.m.tobytes() == S.m[c].tobytes()
+        checked += 1
+    assert checked == 2

@@ -1,0 +1,553 @@
+"""Contacts of articulations on static bodies, solved in contact space with
+the joint tree's response: kernels for one world and their batched entry
+points (``engine.articulated_contacts`` gathers their inputs).
+
+A world's valid contact points (of rows between a static body and a body
+held by tree joints) each give three columns: the normal n and the tangents
+t1, t2 of its row, on its body b with lever arm r, J_i = [d, r × d]. Per
+world, with the tree's metric M (masses, world inertias), its joint rows J_t
+and K = J_t M⁻¹ J_tᵀ factored by :func:`engine.core.tree.factor`:
+
+* the unconstrained response U_i = M⁻¹ J_iᵀ and the constrained one
+  Z_i = U_i - M⁻¹ J_tᵀ K⁻¹ J_t U_i, K⁻¹ by :func:`engine.core.tree.substitute`
+  for all the world's columns at once (Baraff 1996, "Linear-time dynamics
+  using Lagrange multipliers", section 7: the Schur complement of the joints'
+  KKT system);
+* the Delassus matrix A = J_c Z (columns x columns) and the effective masses
+  m_i = 1 / A_ii (0 where A_ii <= 0);
+* projected Gauss-Seidel sweeps on A (the normal columns, then the friction
+  pairs in the Coulomb disc; the soft normal rows of the contact solver,
+  :mod:`engine.core.contacts`), the column velocities u = J_c P v = Zᵀ M v
+  (P v: the velocities projected onto the tree joints' rows) kept up to date
+  column by column, then v += Z Δλ on every body at once.
+
+Layout: the points of all worlds packed world by world (``pt_start``, W + 1),
+each world's points in row then slot order, point p's columns 3p (normal),
+3p + 1, 3p + 2 (friction); Z (columns, N, 6) with one N x 6 block a column;
+A per world column by column (A[a_start[w] + i k + r] = A[r, i], k the
+world's column count), so a sweep's update of u by column i reads it
+contiguously. Every sum runs in an order fixed by the world's own data, so a
+world stepped alone is the same world in a batch bit for bit.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+
+from .contacts import separation
+from .jit import SERIAL_BELOW, kernel, parallel_kernel, prange
+from .tree import substitute
+from .vec import cross, mat3_vec
+
+
+class ArticulatedArrays(NamedTuple):
+    """One step's contact columns on articulations (W batch worlds, P valid
+    points, C = 3 P columns, N bodies a world, nb tree bodies)."""
+
+    held: np.ndarray  # (H,) int64: the worlds with a row, in world order
+    pt_start: np.ndarray  # (W + 1,) int64: world w's points are pt_start[w]..pt_start[w + 1]
+    pt_row: np.ndarray  # (P,) int64: each point's contact row
+    pt_slot: np.ndarray  # (P,) int64: its slot (0..3) in the row
+    row_start: np.ndarray  # (W + 1,) int64: world w's rows are rows[row_start[w]..row_start[w + 1]]
+    rows: np.ndarray  # (rows,) int64: the rows solved here, world by world
+    tree_bodies: np.ndarray  # (nb,) int64: the tree's bodies, in body order
+    M: np.ndarray  # (W, nb, 6, 6): the tree's metric (kg, kg m²) at the step's start
+    body: np.ndarray  # (C,) int64: each column's body
+    J: np.ndarray  # (C, 6): each column's row of J_c on its body, [d, r × d]
+    Z: np.ndarray  # (C, 6 N): each column's constrained response, body b's (v, ω) at 6b..6b+5 (m/s, rad/s per N s)
+    A: np.ndarray  # (Σ k_w²,): each world's Delassus matrix by columns (m/s per N s)
+    a_start: np.ndarray  # (W + 1,) int64: world w's A starts at a_start[w]
+    m: np.ndarray  # (C,) kg: effective masses 1 / A_ii
+    mu: np.ndarray  # (P,) friction coefficient of each point
+    finite: np.ndarray  # (W,) bool: the world's A is finite (the sweeps may skip unchanged columns)
+
+
+class ContactView(NamedTuple):
+    """The fields of the step's ``ContactRowArrays`` (:mod:`engine.core.contacts`)
+    that the solve reads and writes, the same arrays: a kernel call's cost
+    grows with the arrays it is handed."""
+
+    a: np.ndarray
+    b: np.ndarray
+    n: np.ndarray
+    xa0: np.ndarray
+    xb0: np.ndarray
+    ra: np.ndarray
+    rb: np.ndarray
+    la: np.ndarray
+    lb: np.ndarray
+    sep0: np.ndarray
+    lam_n: np.ndarray
+    lam_t1: np.ndarray
+    lam_t2: np.ndarray
+    max_lam_n: np.ndarray
+    s_close: np.ndarray
+    vn_close: np.ndarray
+
+
+class SoftParams(NamedTuple):
+    """The constants of one solve: h (s), the soft contacts' bias_rate (1/s),
+    mass_scale, impulse_scale, slop (m), max_push_out (m/s), thesis (the
+    thesis's rigid rows), sweeps (Gauss-Seidel sweeps a solve)."""
+
+    h: float
+    bias_rate: float
+    mass_scale: float
+    impulse_scale: float
+    slop: float
+    max_push_out: float
+    thesis: bool
+    sweeps: int
+
+
+# ------------------------------------------------------------------ helpers
+@kernel
+def _maximum(a, b):
+    """np.maximum(a, b) of two floats: NaN kept, b where equal."""
+    if a > b or math.isnan(a):
+        return a
+    return b
+
+
+@kernel
+def _minimum(a, b):
+    """np.minimum(a, b) of two floats: NaN kept, b where equal."""
+    if a < b or math.isnan(a):
+        return a
+    return b
+
+
+# ------------------------------------------------------------------ response (one world)
+@kernel
+def _response_world(layout, Dinv, L, Ja, Jb, mask, ja, jb, iinv, inv_mass, R, S, w):
+    """Z, A, m and the finite flag of world w (``ArticulatedArrays``), from the
+    tree's factors Dinv, L (nodes, 6, 6) and row blocks Ja, Jb (nj, 6, 6) on
+    the joints' sides ja, jb (bodies), mask (nj, 6), the world inverse
+    inertias iinv (N, 3, 3) and the inverse masses (N,); R: the step's
+    ``ContactRowArrays``."""
+    p0, p1 = S.pt_start[w], S.pt_start[w + 1]
+    lo = 3 * p0
+    k = 3 * (p1 - p0)
+    N = inv_mass.size
+    nj = ja.size
+    if k == 0:
+        return
+    # The columns' J and U = M⁻¹ Jᵀ on their bodies (k, 6).
+    U = np.empty((k, 6))
+    for p in range(p0, p1):
+        r, s = S.pt_row[p], S.pt_slot[p]
+        lever = (R.rb[r, s, 0], R.rb[r, s, 1], R.rb[r, s, 2])
+        b = R.b[r]
+        for q in range(3):
+            if q == 0:
+                d = (R.n[r, 0], R.n[r, 1], R.n[r, 2])
+            elif q == 1:
+                d = (R.t1[r, 0], R.t1[r, 1], R.t1[r, 2])
+            else:
+                d = (R.t2[r, 0], R.t2[r, 1], R.t2[r, 2])
+            c = 3 * p + q
+            t = cross(lever, d)
+            S.body[c] = b
+            S.J[c, 0], S.J[c, 1], S.J[c, 2] = d
+            S.J[c, 3], S.J[c, 4], S.J[c, 5] = t
+            im = inv_mass[b]
+            wt = mat3_vec(iinv, b, t)
+            i = c - lo
+            U[i, 0], U[i, 1], U[i, 2] = d[0] * im, d[1] * im, d[2] * im
+            U[i, 3], U[i, 4], U[i, 5] = wt
+    # The joints' rows J_t U (nj, 6, k): a column moves its one body only.
+    B = np.empty((nj, 6, k))
+    for j in range(nj):
+        for r in range(6):
+            for i in range(k):
+                bc = S.body[lo + i]
+                sa = 0.0
+                if ja[j] == bc:
+                    for x in range(6):
+                        sa += Ja[j, r, x] * U[i, x]
+                sb = 0.0
+                if jb[j] == bc:
+                    for x in range(6):
+                        sb += Jb[j, r, x] * U[i, x]
+                B[j, r, i] = (sa + sb) * mask[j, r]
+    X = np.empty((nj, 6, k))
+    substitute(layout, Dinv, L, B, X)  # K⁻¹ J_t U
+    # F = J_tᵀ K⁻¹ J_t U per body (N, 6, k): the sides a in joint order, then the sides b.
+    F = np.zeros((N, 6, k))
+    acc = np.empty(k)
+    for side in range(2):
+        for j in range(nj):
+            body = ja[j] if side == 0 else jb[j]
+            Js = Ja[j] if side == 0 else Jb[j]
+            for x in range(6):
+                # (J_sᵀ X)[x, i] = Σ_r J_s[r, x] X[r, i], r in order, for all i at once.
+                acc[:] = 0.0
+                for r in range(6):
+                    f = Js[r, x]
+                    for i in range(k):
+                        acc[i] += f * X[j, r, i]
+                for i in range(k):
+                    F[body, x, i] += acc[i]
+    # Z = U - M⁻¹ F.
+    for i in range(k):
+        c = lo + i
+        bc = S.body[c]
+        for b in range(N):
+            im = inv_mass[b]
+            for x in range(3):
+                u = U[i, x] if b == bc else 0.0
+                S.Z[c, 6 * b + x] = u - F[b, x, i] * im
+            f = (F[b, 3, i], F[b, 4, i], F[b, 5, i])
+            g = mat3_vec(iinv, b, f)
+            for x in range(3):
+                u = U[i, 3 + x] if b == bc else 0.0
+                S.Z[c, 6 * b + 3 + x] = u - g[x]
+    # A[r, i] = Σ_d J[r, d] Z[i, body_r, d], column by column; m = 1 / A_ii.
+    a0 = S.a_start[w]
+    finite = True
+    for i in range(k):
+        ci = lo + i
+        base = a0 + i * k
+        for r in range(k):
+            cr = lo + r
+            br = S.body[cr]
+            s = 0.0
+            for d in range(6):
+                s += S.Z[ci, 6 * br + d] * S.J[cr, d]
+            S.A[base + r] = s
+            if not math.isfinite(s):
+                finite = False
+        diag = S.A[base + i]
+        S.m[ci] = 1.0 / diag if diag > 0.0 else 0.0
+    S.finite[w] = finite
+    for p in range(p0, p1):
+        S.mu[p] = R.mu[S.pt_row[p], S.pt_slot[p]]
+
+
+@parallel_kernel
+def response(layout, Dinv, L, Ja, Jb, mask, ja, jb, iinv, inv_mass, R, S):
+    """``_response_world`` of every world in S.held; Dinv, L (H, nodes, 6, 6)
+    of the held worlds in order, Ja, Jb (W, nj, 6, 6), mask (W, nj, 6) and
+    iinv (W, N, 3, 3) of the batch."""
+    H = S.held.size
+    if H < SERIAL_BELOW:
+        for q in range(H):
+            w = S.held[q]
+            _response_world(layout, Dinv[q], L[q], Ja[w], Jb[w], mask[w], ja, jb, iinv[w], inv_mass, R, S, w)
+    else:
+        for q in prange(H):
+            _response_world(layout, Dinv[q], L[q], Ja[S.held[q]], Jb[S.held[q]], mask[S.held[q]], ja, jb,
+                            iinv[S.held[q]], inv_mass, R, S, S.held[q])
+
+
+# ------------------------------------------------------------------ velocities (one world)
+@kernel
+def _column_velocities(S, w, vel, angvel, u):
+    """u = Zᵀ M v (k,) of world w: J_c P v, the column velocities after the
+    joint solve's projection P v = v - M⁻¹J_tᵀK⁻¹J_t v (as Z = P M⁻¹J_cᵀ and
+    M⁻¹PᵀM = P). vel, angvel: the world's (N, 3). Each column a dot product
+    with the momenta over the tree bodies' six rows in order."""
+    lo, hi = 3 * S.pt_start[w], 3 * S.pt_start[w + 1]
+    tb = S.tree_bodies
+    nb = tb.size
+    M = S.M[w]
+    mom = np.empty((nb, 6))
+    for q in range(nb):
+        b = tb[q]
+        v = (vel[b, 0], vel[b, 1], vel[b, 2], angvel[b, 0], angvel[b, 1], angvel[b, 2])
+        for r in range(6):
+            s = 0.0
+            for x in range(6):
+                s += M[q, r, x] * v[x]
+            mom[q, r] = s
+    # Each column's sum over the tree bodies' rows in order, all columns at once.
+    for c in range(hi - lo):
+        u[c] = 0.0
+    for q in range(nb):
+        col = 6 * tb[q]
+        for x in range(6):
+            f = mom[q, x]
+            for c in range(lo, hi):
+                u[c - lo] += f * S.Z[c, col + x]
+
+
+@kernel
+def _apply_world(S, w, dlam, vel, angvel):
+    """v += Z Δλ on every body of world w, each body row summed over the
+    columns in order; dlam (k,)."""
+    lo, hi = 3 * S.pt_start[w], 3 * S.pt_start[w + 1]
+    N = vel.shape[0]
+    if hi == lo:
+        return
+    # Each body row summed over the columns in order, all rows at once.
+    dv = np.zeros(6 * N)
+    for c in range(lo, hi):
+        f = dlam[c - lo]
+        for q in range(6 * N):
+            dv[q] += S.Z[c, q] * f
+    for b in range(N):
+        for x in range(3):
+            vel[b, x] += dv[6 * b + x]
+            angvel[b, x] += dv[6 * b + 3 + x]
+
+
+@kernel
+def _gather(R, S, w, lam):
+    """The world's points' accumulated impulses (normal, t1, t2) as columns (k,)."""
+    p0, p1 = S.pt_start[w], S.pt_start[w + 1]
+    for p in range(p0, p1):
+        r, s = S.pt_row[p], S.pt_slot[p]
+        i = 3 * (p - p0)
+        lam[i] = R.lam_n[r, s]
+        lam[i + 1] = R.lam_t1[r, s]
+        lam[i + 2] = R.lam_t2[r, s]
+
+
+@kernel
+def _scatter(R, S, w, lam):
+    """Impulses (k,) back to the world's rows (0 in their invalid slots), and
+    each slot's largest normal impulse of the step."""
+    for q in range(S.row_start[w], S.row_start[w + 1]):
+        r = S.rows[q]
+        for s in range(4):
+            R.lam_n[r, s] = 0.0
+            R.lam_t1[r, s] = 0.0
+            R.lam_t2[r, s] = 0.0
+    p0, p1 = S.pt_start[w], S.pt_start[w + 1]
+    for p in range(p0, p1):
+        r, s = S.pt_row[p], S.pt_slot[p]
+        i = 3 * (p - p0)
+        R.lam_n[r, s] = lam[i]
+        R.lam_t1[r, s] = lam[i + 1]
+        R.lam_t2[r, s] = lam[i + 2]
+    for q in range(S.row_start[w], S.row_start[w + 1]):
+        r = S.rows[q]
+        for s in range(4):
+            R.max_lam_n[r, s] = _maximum(R.max_lam_n[r, s], R.lam_n[r, s])
+
+
+# ------------------------------------------------------------------ warm start (one world)
+@kernel
+def _warm_start_world(R, S, w, vel, angvel):
+    """v += Z λ of the stored impulses, if any is non-zero."""
+    k = 3 * (S.pt_start[w + 1] - S.pt_start[w])
+    lam = np.empty(k)
+    _gather(R, S, w, lam)
+    for i in range(k):
+        if lam[i] != 0.0:
+            _apply_world(S, w, lam, vel, angvel)
+            return
+
+
+@parallel_kernel
+def warm_start(R, S, vel, angvel):
+    """``_warm_start_world`` of every held world; vel, angvel (W, N, 3)."""
+    H = S.held.size
+    if H < SERIAL_BELOW:
+        for q in range(H):
+            w = S.held[q]
+            _warm_start_world(R, S, w, vel[w], angvel[w])
+    else:
+        for q in prange(H):
+            _warm_start_world(R, S, S.held[q], vel[S.held[q]], angvel[S.held[q]])
+
+
+# ------------------------------------------------------------------ solve (one world)
+@kernel
+def _sweep(S, w, u, lam, sweep_start, gain, bias, isc, soft, u_before):
+    """One projected Gauss-Seidel sweep of world w: the normal columns, then
+    the friction pairs, updating the column velocities u and impulses lam
+    (k,) in place; u_before (points,): each normal column's velocity at its
+    update. Normal: λ = max(λ₀ + gain (u + bias) - isc λ₀, 0) (the last term
+    with ``soft``), λ₀ the sweep's start; friction: λ_t - m_t u_t into the
+    disc |λ_t| <= μ λ_n. u holds no -0.0, so while A is finite adding an
+    exact zero change leaves it as it is: a column whose impulse did not
+    change is skipped (inf · 0 is NaN, which must reach u)."""
+    p0, p1 = S.pt_start[w], S.pt_start[w + 1]
+    n = p1 - p0
+    k = 3 * n
+    lo = 3 * p0
+    a0 = S.a_start[w]
+    skip = S.finite[w]
+    A, m = S.A, S.m
+    for p in range(n):
+        i = 3 * p
+        ui = u[i]
+        u_before[p] = ui
+        d = gain[p] * (ui + bias[p])
+        if soft:
+            d = d - isc[p] * sweep_start[i]
+        new = _maximum(sweep_start[i] + d, 0.0)
+        change = new - sweep_start[i]
+        if not skip or change != 0.0:
+            base = a0 + i * k
+            for r in range(k):
+                u[r] += A[base + r] * change
+        lam[i] = new
+    for p in range(n):
+        i, j, l = 3 * p, 3 * p + 1, 3 * p + 2
+        t1 = lam[j] - m[lo + j] * u[j]
+        t2 = lam[l] - m[lo + l] * u[l]
+        limit = S.mu[p0 + p] * lam[i]
+        mag = math.sqrt(t1 * t1 + t2 * t2)
+        scale = limit / max(mag, 1e-30) if mag > limit else 1.0
+        t1, t2 = t1 * scale, t2 * scale
+        c1, c2 = t1 - lam[j], t2 - lam[l]
+        if not skip or c1 != 0.0 or c2 != 0.0:
+            bj, bl = a0 + j * k, a0 + l * k
+            for r in range(k):
+                u[r] += A[bj + r] * c1 + A[bl + r] * c2
+        lam[j], lam[l] = t1, t2
+
+
+@kernel
+def _solve_world(R, S, w, pos, ori, vel, angvel, prm, use_bias):
+    """``SoftParams.sweeps`` sweeps of world w (``_sweep``), each point's
+    closing speed and gap recorded just before it first takes load (for
+    restitution), then v += Z Δλ and the impulses back to the rows. The
+    normal columns' bias and gain: an open point (s > 0) is speculative
+    (bias s/h, gain -m); a penetrating one soft in the biased solve (bias
+    rate·min(s + slop, 0) capped at -max_push_out, gain -m·mass_scale,
+    impulse scale) and rigid without bias otherwise."""
+    p0, p1 = S.pt_start[w], S.pt_start[w + 1]
+    n = p1 - p0
+    k = 3 * n
+    lo = 3 * p0
+    h = prm.h
+    soft = use_bias and not prm.thesis
+    sep = np.empty(n)
+    bias = np.empty(n)
+    gain = np.empty(n)
+    isc = np.zeros(n)
+    for p in range(n):
+        r, s = S.pt_row[p0 + p], S.pt_slot[p0 + p]
+        x = separation(R, r, s, pos, ori)
+        sep[p] = x
+        mi = S.m[lo + 3 * p]
+        if soft:
+            if x > 0.0:
+                bias[p], gain[p] = x / h, -mi * 1.0
+            else:
+                bias[p] = _maximum(prm.bias_rate * _minimum(x + prm.slop, 0.0), -prm.max_push_out)
+                gain[p] = -mi * prm.mass_scale
+                isc[p] = prm.impulse_scale
+        else:
+            bias[p] = x / h if x > 0.0 else 0.0
+            gain[p] = -mi
+    u = np.empty(k)
+    _column_velocities(S, w, vel, angvel, u)
+    for i in range(k):
+        u[i] = u[i] + 0.0  # no -0.0 entries (see _sweep)
+    lam = np.empty(k)
+    _gather(R, S, w, lam)
+    start = lam.copy()
+    sweep_start = np.empty(k)
+    loaded = np.empty(n, dtype=np.bool_)
+    v_close = np.empty(n)
+    s_close = np.empty(n)
+    for p in range(n):
+        r, s = S.pt_row[p0 + p], S.pt_slot[p0 + p]
+        loaded[p] = R.max_lam_n[r, s] > 0.0
+        v_close[p] = R.vn_close[r, s]
+        s_close[p] = R.s_close[r, s]
+    u_before = np.empty(n)
+    for _ in range(prm.sweeps):
+        sweep_start[:] = lam
+        _sweep(S, w, u, lam, sweep_start, gain, bias, isc, soft, u_before)
+        for p in range(n):
+            if not loaded[p] and lam[3 * p] > 0.0:
+                v_close[p] = u_before[p]
+                s_close[p] = sep[p]
+                loaded[p] = True
+    for p in range(n):
+        r, s = S.pt_row[p0 + p], S.pt_slot[p0 + p]
+        R.vn_close[r, s] = v_close[p]
+        R.s_close[r, s] = s_close[p]
+    for i in range(k):
+        start[i] = lam[i] - start[i]
+    _apply_world(S, w, start, vel, angvel)
+    _scatter(R, S, w, lam)
+
+
+@parallel_kernel
+def solve(R, S, pos, ori, vel, angvel, prm, use_bias):
+    """``_solve_world`` of every held world; pos, ori, vel, angvel (W, N, ...)."""
+    H = S.held.size
+    if H < SERIAL_BELOW:
+        for q in range(H):
+            w = S.held[q]
+            _solve_world(R, S, w, pos[w], ori[w], vel[w], angvel[w], prm, use_bias)
+    else:
+        for q in prange(H):
+            _solve_world(R, S, S.held[q], pos[S.held[q]], ori[S.held[q]], vel[S.held[q]], angvel[S.held[q]], prm,
+                         use_bias)
+
+
+# ------------------------------------------------------------------ restitution (one world)
+@kernel
+def _bounce_world(R, S, w, vel, angvel, bounce, target):
+    """The points of world w marked in ``bounce`` (rows, 4): their normal
+    impulses grow (λ_n >= 0) until each one's separating speed is its
+    ``target`` (m/s), in one sweep over the normal columns with the coupling
+    A, then v += Z Δλ. A world without a marked point is left as it is."""
+    p0, p1 = S.pt_start[w], S.pt_start[w + 1]
+    n = p1 - p0
+    k = 3 * n
+    lo = 3 * p0
+    a0 = S.a_start[w]
+    on = False
+    for p in range(p0, p1):
+        if bounce[S.pt_row[p], S.pt_slot[p]]:
+            on = True
+    if not on:
+        return
+    u = np.empty(k)
+    _column_velocities(S, w, vel, angvel, u)
+    lam = np.empty(k)
+    _gather(R, S, w, lam)
+    start = lam.copy()
+    for p in range(n):
+        r, s = S.pt_row[p0 + p], S.pt_slot[p0 + p]
+        if not bounce[r, s]:
+            continue
+        i = 3 * p
+        new = _maximum(lam[i] - S.m[lo + i] * (u[i] - target[r, s]), 0.0)
+        change = new - lam[i]
+        base = a0 + i * k
+        for x in range(k):
+            u[x] += S.A[base + x] * change
+        lam[i] = new
+    for i in range(k):
+        start[i] = lam[i] - start[i]
+    _apply_world(S, w, start, vel, angvel)
+    _scatter(R, S, w, lam)
+
+
+@parallel_kernel
+def bounce(R, S, vel, angvel, marked, target):
+    """``_bounce_world`` of every held world; marked, target (rows, 4)."""
+    H = S.held.size
+    if H < SERIAL_BELOW:
+        for q in range(H):
+            w = S.held[q]
+            _bounce_world(R, S, w, vel[w], angvel[w], marked, target)
+    else:
+        for q in prange(H):
+            _bounce_world(R, S, S.held[q], vel[S.held[q]], angvel[S.held[q]], marked, target)
+
+
+@parallel_kernel
+def column_velocities(S, vel, angvel, u):
+    """u (C,) = Zᵀ M v of every held world's columns (``_column_velocities``)."""
+    H = S.held.size
+    if H < SERIAL_BELOW:
+        for q in range(H):
+            w = S.held[q]
+            _column_velocities(S, w, vel[w], angvel[w], u[3 * S.pt_start[w]:3 * S.pt_start[w + 1]])
+    else:
+        for q in prange(H):
+            _column_velocities(S, S.held[q], vel[S.held[q]], angvel[S.held[q]],
+                               u[3 * S.pt_start[S.held[q]]:3 * S.pt_start[S.held[q] + 1]])
