@@ -250,50 +250,60 @@ def factor(layout, Ja, Jb, mask, M, M_inv, use_leaf_inv, ball_rows, Dinv, L):
 def substitute(layout, Dinv, L, R, X):
     """X = (J M⁻¹ Jᵀ)⁻¹ R of one world, R and X (nj, 6, k), through the
     factors of ``factor``: the forward substitution leaves first, the back
-    substitution roots first, x = -z on the joints' rows. Column by column,
-    each a 6x6 block product with fixed bounds, which the compiler can unroll."""
+    substitution roots first, x = -z on the joints' rows. Each entry of a
+    column is a 6-term sum in a fixed order; the loop over the k columns is
+    innermost, so the columns are independent lanes of the same products."""
     nb = layout.n_bodies
     n = layout.order.size
     k = R.shape[2]
-    y = np.empty((n, 6, k))  # forward values, overwritten by x in the back substitution
-    for node in range(nb):
-        for r in range(6):
-            for c in range(k):
-                y[node, r, c] = 0.0
+    y = np.zeros((n, 6, k))  # forward values, overwritten by x in the back substitution
     for j in range(n - nb):
         for r in range(6):
             for c in range(k):
                 y[nb + j, r, c] = R[j, r, c]
-    tmp = np.empty(6)
+    s = np.empty(k)
+    t = np.empty(k)
+    tmp = np.empty((6, k))
     for q in range(n):
         node = layout.order[q]
         p = layout.parent[node]
         if p < 0:
             continue
         # y_parent -= L_nodeᵀ y_node (children in node order, as they come leaves first).
-        for c in range(k):
-            for r in range(6):
-                s = 0.0
-                for i in range(6):
-                    s += L[node, i, r] * y[node, i, c]
-                y[p, r, c] -= s
+        for r in range(6):
+            for c in range(k):
+                s[c] = 0.0
+            for i in range(6):
+                f = L[node, i, r]
+                for c in range(k):
+                    s[c] += f * y[node, i, c]
+            for c in range(k):
+                y[p, r, c] -= s[c]
     for q in range(n - 1, -1, -1):
         node = layout.order[q]
         p = layout.parent[node]
         # x_node = D⁻¹ y_node - L_node x_parent (the parent's x is in y already).
-        for c in range(k):
-            for r in range(6):
-                s = 0.0
+        for r in range(6):
+            for c in range(k):
+                s[c] = 0.0
+            for i in range(6):
+                f = Dinv[node, r, i]
+                for c in range(k):
+                    s[c] += f * y[node, i, c]
+            if p >= 0:
+                for c in range(k):
+                    t[c] = 0.0
                 for i in range(6):
-                    s += Dinv[node, r, i] * y[node, i, c]
-                if p >= 0:
-                    t = 0.0
-                    for i in range(6):
-                        t += L[node, r, i] * y[p, i, c]
-                    s -= t
-                tmp[r] = s
-            for r in range(6):
-                y[node, r, c] = tmp[r]
+                    f = L[node, r, i]
+                    for c in range(k):
+                        t[c] += f * y[p, i, c]
+                for c in range(k):
+                    s[c] -= t[c]
+            for c in range(k):
+                tmp[r, c] = s[c]
+        for r in range(6):
+            for c in range(k):
+                y[node, r, c] = tmp[r, c]
     for j in range(n - nb):
         for r in range(6):
             for c in range(k):
