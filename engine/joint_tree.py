@@ -542,7 +542,11 @@ def _row_arrays(joints, kind, parent, child, ang_mask, eq_mask):
 
 def _per_joint(x, W, nj):
     """A softness term (a scalar, or (W, nj) or (W, nj, 1) per joint) as a contiguous (W, nj) array."""
+    if np.ndim(x) == 0:
+        return np.full((W, nj), float(x))
     a = np.asarray(x, dtype=float)
     if a.ndim == 3:
         a = a[..., 0]
-    return np.ascontiguousarray(np.broadcast_to(a, (W, nj)))
+    if a.shape != (W, nj):
+        a = np.broadcast_to(a, (W, nj))
+    return np.ascontiguousarray(a)

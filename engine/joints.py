@@ -42,10 +42,11 @@ from functools import cached_property
 import numpy as np
 
 from .coloring import color_pairs
-from .math3d import quat_rotate_inv, dot, quat_conj, quat_mul, quat_to_matrix, world_inv_inertia
+from .math3d import quat_rotate_inv, dot, quat_conj, quat_mul
 from .joint_projection import project_joints, undo_unfollowed_moves
 from .core.joints import (BALL, FIXED, HINGE, TWIST_LIMIT_MAX_SWING, JointArrays, JointGeometry,  # noqa: F401
                           empty_geometry, joint_geometry)
+from .core.joints import inertia as inertia_kernel
 from .core.joints import passive as passive_kernel, warm_start as warm_start_kernel
 from .core.joint_rows import FIXED_LOCK, HINGE_LOCK, POINT, add_load as add_load_kernel, snap as snap_kernel
 from .core.joint_rows import project_positions as project_positions_kernel, solve_equality as solve_equality_kernel
@@ -506,8 +507,9 @@ class JointSet:
     def _set_inertia(self, model, state):
         """World inverse inertias (and the rotation matrices, which the tree
         solver's inertias reuse) at the state's orientations."""
-        self._rot = quat_to_matrix(state.orientation)
-        self._iinv = world_inv_inertia(None, model.inv_inertia, self._rot)
+        W, N = state.orientation.shape[:2]
+        self._rot, self._iinv = np.empty((W, N, 3, 3)), np.empty((W, N, 3, 3))
+        inertia_kernel(state.orientation, model.inv_inertia, self._rot, self._iinv)
 
     def _active(self, state, idx):
         return (~state.joint_broken.take(idx, 1)).astype(float)

@@ -31,7 +31,9 @@ from typing import NamedTuple
 import numpy as np
 
 from .jit import SERIAL_BELOW, kernel, parallel_kernel, prange
-from .vec import add, cross, dot, load3, load4, mat3_vec, quat_conj, quat_mul, rotate, scale
+from .contacts import world_inv_inertia
+from .vec import (add, column, cross, dot, load3, load4, mat3_vec, quat_conj, quat_mul, quat_to_matrix, rotate,
+                  scale)
 
 HINGE, BALL, FIXED = 0, 1, 2
 #: Beyond this swing (rad) a ball joint's twist limit row is dropped: the twist
@@ -271,3 +273,29 @@ def passive(J, order, iinv, g, stiffness, damping, rest, broken, angvel, h):
     else:
         for w in prange(nw):
             _passive_world(J, order, iinv[w], g, w, stiffness, damping, rest, broken[w], angvel[w], h)
+
+
+@kernel
+def _inertia_world(ori, inv_inertia, rot, iinv):
+    """Every body's rotation matrix rot (N, 3, 3) and world inverse inertia
+    iinv = R diag(I_b⁻¹) Rᵀ (N, 3, 3), 1/(kg m²), of one world."""
+    for i in range(ori.shape[0]):
+        q = load4(ori, i)
+        c = quat_to_matrix(q)
+        for col in range(3):
+            v = column(c, col)
+            for r in range(3):
+                rot[i, r, col] = v[r]
+        world_inv_inertia(q, (inv_inertia[i, 0], inv_inertia[i, 1], inv_inertia[i, 2]), iinv, i)
+
+
+@parallel_kernel
+def inertia(ori, inv_inertia, rot, iinv):
+    """``_inertia_world`` of every world: ori (W, N, 4), inv_inertia (N, 3) principal inverse moments."""
+    nw = ori.shape[0]
+    if nw < SERIAL_BELOW:
+        for w in range(nw):
+            _inertia_world(ori[w], inv_inertia, rot[w], iinv[w])
+    else:
+        for w in prange(nw):
+            _inertia_world(ori[w], inv_inertia, rot[w], iinv[w])
