@@ -40,7 +40,7 @@ import math
 
 from .jit import SERIAL_BELOW, kernel, parallel_kernel, prange
 from .joints import _add3
-from .vec import add, cross, dot, load3, load4, mat3_vec, neg, quat_conj, quat_mul, rotate, scale, sub
+from .vec import add, cross, dot, load3, load4, mat3_vec, neg, quat_conj, quat_mul, rotate, scale, sub, sym3_inverse
 
 #: Kinds of equality row, in the order a colour's rows are solved.
 HINGE_LOCK, FIXED_LOCK, POINT = 0, 1, 2
@@ -75,16 +75,7 @@ def _sym3_solve(a00, a01, a02, a11, a12, a22, b):
     """x with K x = b for the symmetric K of upper triangle a, by the adjugate
     (``engine.math3d.sym3_solve``: the cofactors, the determinant by the first
     row, each entry of the inverse times b summed left to right; singular: 0)."""
-    c00 = a11 * a22 - a12 * a12
-    c01 = a02 * a12 - a01 * a22
-    c02 = a01 * a12 - a02 * a11
-    c11 = a00 * a22 - a02 * a02
-    c12 = a01 * a02 - a00 * a12
-    c22 = a00 * a11 - a01 * a01
-    det = a00 * c00 + a01 * c01 + a02 * c02
-    inv_det = 1.0 / det if det != 0.0 else 0.0
-    i00, i01, i02 = c00 * inv_det, c01 * inv_det, c02 * inv_det
-    i11, i12, i22 = c11 * inv_det, c12 * inv_det, c22 * inv_det
+    i00, i01, i02, i11, i12, i22 = sym3_inverse(a00, a01, a02, a11, a12, a22)
     return (i00 * b[0] + i01 * b[1] + i02 * b[2],
             i01 * b[0] + i11 * b[1] + i12 * b[2],
             i02 * b[0] + i12 * b[1] + i22 * b[2])

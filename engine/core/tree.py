@@ -49,6 +49,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .jit import SERIAL_BELOW, kernel, parallel_kernel, prange
+from .vec import sym3_inverse
 
 
 class TreeLayout(NamedTuple):
@@ -117,19 +118,10 @@ def sym3_inverse_into(a, out):
     """out[:3, :3] = a[:3, :3]⁻¹ of a symmetric matrix by the adjugate,
     reading its upper triangle (0 if singular), the cofactors and
     determinant summed as :func:`engine.math3d.sym3_inverse` sums them."""
-    a00, a01, a02 = a[0, 0], a[0, 1], a[0, 2]
-    a11, a12, a22 = a[1, 1], a[1, 2], a[2, 2]
-    c00 = a11 * a22 - a12 * a12
-    c01 = a02 * a12 - a01 * a22
-    c02 = a01 * a12 - a02 * a11
-    c11 = a00 * a22 - a02 * a02
-    c12 = a01 * a02 - a00 * a12
-    c22 = a00 * a11 - a01 * a01
-    det = a00 * c00 + a01 * c01 + a02 * c02
-    inv_det = 1.0 / det if det != 0.0 else 0.0
-    out[0, 0], out[0, 1], out[0, 2] = c00 * inv_det, c01 * inv_det, c02 * inv_det
-    out[1, 0], out[1, 1], out[1, 2] = c01 * inv_det, c11 * inv_det, c12 * inv_det
-    out[2, 0], out[2, 1], out[2, 2] = c02 * inv_det, c12 * inv_det, c22 * inv_det
+    i00, i01, i02, i11, i12, i22 = sym3_inverse(a[0, 0], a[0, 1], a[0, 2], a[1, 1], a[1, 2], a[2, 2])
+    out[0, 0], out[0, 1], out[0, 2] = i00, i01, i02
+    out[1, 0], out[1, 1], out[1, 2] = i01, i11, i12
+    out[2, 0], out[2, 1], out[2, 2] = i02, i12, i22
 
 
 @kernel

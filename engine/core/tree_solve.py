@@ -475,6 +475,28 @@ def _with_slots(T, on, lrows, mask, Ja, Jb, mask_out):
 
 
 @kernel
+def _slot_rhs(r, lr, on, rhs):
+    """rhs[:, :, 0] = r with the limit rows' right-hand sides lr where ``on``
+    (nj, 2) in slots 3 (twist) and 4 (swing)."""
+    for j in range(r.shape[0]):
+        for s in range(6):
+            val = r[j, s]
+            if s == 3 and on[j, 0]:
+                val = lr[j, 0]
+            elif s == 4 and on[j, 1]:
+                val = lr[j, 1]
+            rhs[j, s, 0] = val
+
+
+@kernel
+def _first_column(X, out):
+    """out = X[:, :, 0] of a single-column substitution."""
+    for j in range(out.shape[0]):
+        for s in range(6):
+            out[j, s] = X[j, s, 0]
+
+
+@kernel
 def solve_world(T, layout, fpw, fcw, ra, rb, jt, twist, js, c_swing, twist_defined, broken, iinv, M, M_inv, x, q,
                 v, w, lam_lin, lam_ang, lam_limit, bias_rate, mass_scale, impulse_scale, use_bias, h, max_push_out,
                 max_angular_push_out, limits, schur, active_set_passes, refactor, S_E, S_mask, S_Ja, S_Jb, S_Dinv,
@@ -529,9 +551,7 @@ def solve_world(T, layout, fpw, fcw, ra, rb, jt, twist, js, c_swing, twist_defin
             for s in range(6):
                 rhs[j, s, 0] = r[j, s]
         substitute(layout, S_Dinv, S_L, rhs, X1)
-        for j in range(nj):
-            for s in range(6):
-                xs[j, s] = X1[j, s, 0]
+        _first_column(X1, xs)
         _soft_impulses(T, xs, S_mask, lim, False, mass_scale, impulse_scale, lam_lin, lam_ang, d)
         _apply(T, S_Ja, S_Jb, d, iinv, lam_lin, lam_ang, v, w, imp)
         return
@@ -541,18 +561,9 @@ def solve_world(T, layout, fpw, fcw, ra, rb, jt, twist, js, c_swing, twist_defin
             active[j, s] = exists[j, s] and sigma[j, s] * lr[j, s] < 0
     x0 = np.empty((nj, 6))
     if schur:
-        for j in range(nj):
-            for s in range(6):
-                val = r[j, s]
-                if s == 3 and exists[j, 0]:
-                    val = lr[j, 0]
-                elif s == 4 and exists[j, 1]:
-                    val = lr[j, 1]
-                rhs[j, s, 0] = val
+        _slot_rhs(r, lr, exists, rhs)
         substitute(layout, S_Dinv, S_L, rhs, X1)
-        for j in range(nj):
-            for s in range(6):
-                x0[j, s] = X1[j, s, 0]
+        _first_column(X1, x0)
     Jaw = np.empty((nj, 6, 6))
     Jbw = np.empty((nj, 6, 6))
     Dinv_w = np.empty(S_Dinv.shape)
@@ -598,18 +609,9 @@ def solve_world(T, layout, fpw, fcw, ra, rb, jt, twist, js, c_swing, twist_defin
                         Jbw[j, p, qq] = S_Jb[j, p, qq]
             _with_slots(T, active, lrows, S_mask, Jaw, Jbw, mask_f)
             factor(layout, Jaw, Jbw, mask_f, M, M_inv, True, False, Dinv_w, L_w)
-            for j in range(nj):
-                for s in range(6):
-                    val = r[j, s]
-                    if s == 3 and active[j, 0]:
-                        val = lr[j, 0]
-                    elif s == 4 and active[j, 1]:
-                        val = lr[j, 1]
-                    rhs[j, s, 0] = val
+            _slot_rhs(r, lr, active, rhs)
             substitute(layout, Dinv_w, L_w, rhs, X1)
-            for j in range(nj):
-                for s in range(6):
-                    xs[j, s] = X1[j, s, 0]
+            _first_column(X1, xs)
             Ja_use, Jb_use = Jaw, Jbw
         for j in range(nj):
             lim[j, 3] = 1.0 if active[j, 0] else 0.0

@@ -195,3 +195,20 @@ def column(m, i):
     if i == 1:
         return m[1]
     return m[2]
+
+
+@kernel
+def sym3_inverse(a00, a01, a02, a11, a12, a22):
+    """The upper triangle (i00, i01, i02, i11, i12, i22) of the inverse of
+    the symmetric 3x3 matrix with upper triangle a, by the adjugate (0 if
+    singular): the cofactors and the determinant by the first row, summed as
+    :func:`engine.math3d.sym3_inverse` sums them."""
+    c00 = a11 * a22 - a12 * a12
+    c01 = a02 * a12 - a01 * a22
+    c02 = a01 * a12 - a02 * a11
+    c11 = a00 * a22 - a02 * a02
+    c12 = a01 * a02 - a00 * a12
+    c22 = a00 * a11 - a01 * a01
+    det = a00 * c00 + a01 * c01 + a02 * c02
+    inv_det = 1.0 / det if det != 0.0 else 0.0
+    return c00 * inv_det, c01 * inv_det, c02 * inv_det, c11 * inv_det, c12 * inv_det, c22 * inv_det

@@ -15,7 +15,7 @@ import pytest
 import engine as e
 from benchmarks import scenes
 from engine.core import joint_rows
-from engine.core.jit import SERIAL_BELOW, get_threads, set_threads
+from engine.core.jit import SERIAL_BELOW, set_threads
 from engine.math3d import quat_from_axis_angle, quat_rotate
 
 RIGID = (0.0, 1.0, 0.0)  # bias rate, mass scale, impulse scale: no position error, rigid
@@ -261,13 +261,6 @@ def _run(case, state, steps):
     for k in range(steps):
         e.step(case.model, state, None if case.controller is None else case.controller(k, state))
     return state
-
-
-@pytest.fixture
-def restore_threads():
-    before = get_threads()
-    yield
-    set_threads(before)
 
 
 @pytest.mark.skipif(numba.config.NUMBA_NUM_THREADS < 2, reason="needs 2 threads")

@@ -2,7 +2,6 @@
 bit, W worlds together equal each alone, one model steps several states."""
 
 import numba
-import numpy as np
 import pytest
 
 import engine
@@ -14,13 +13,6 @@ def _run(case, state, steps):
     for k in range(steps):
         engine.step(case.model, state, None if case.controller is None else case.controller(k, state))
     return state
-
-
-@pytest.fixture
-def restore_threads():
-    before = get_threads()
-    yield
-    set_threads(before)
 
 
 @pytest.mark.skipif(numba.config.NUMBA_NUM_THREADS < 2, reason="needs 2 threads")
