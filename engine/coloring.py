@@ -1,15 +1,22 @@
 """Greedy graph colouring of constraints so that no body appears twice in a colour.
 
 Within one colour the constraints touch disjoint bodies, so one colour is one
-vectorised sweep over worlds × constraints with no write conflicts: a
-Gauss-Seidel solve becomes a sequence of Jacobi-free parallel sweeps, as in
-Box2D v3's graph colouring (``src/constraint_graph.c``). Static bodies do not
-count: they never move, so many constraints may share one.
+sweep over worlds × constraints with no write conflicts: a Gauss-Seidel solve
+becomes a sequence of conflict-free sweeps, as in Box2D v3's graph colouring
+(``src/constraint_graph.c``). Static bodies do not count: they never move, so
+many constraints may share one.
+
+``color_pairs`` colours the joints and springs once, when a model is built;
+the contact rows of each step are coloured world by world by the kernel
+:func:`engine.core.contacts.color_in_order`, which ``color_rows`` calls on
+rows of any keys.
 """
 
 from __future__ import annotations
 
 import numpy as np
+
+from .core.contacts import color_in_order
 
 
 def color_pairs(body_a, body_b, dynamic) -> list[np.ndarray]:
@@ -37,7 +44,7 @@ def color_pairs(body_a, body_b, dynamic) -> list[np.ndarray]:
 
 
 def color_rows(key_a, key_b, dyn_a, dyn_b, num_keys, priority, first_fit=False) -> list[np.ndarray]:
-    """Vectorised colouring of rows (contact manifolds) by their keys.
+    """Colouring of rows (contact manifolds) by their keys.
 
     key_a, key_b: (K,) keys of each row's two bodies (world × bodies + body);
     dyn_a, dyn_b: (K,) whether that body moves (static keys are shared freely);
@@ -45,9 +52,9 @@ def color_rows(key_a, key_b, dyn_a, dyn_b, num_keys, priority, first_fit=False) 
     priority: (K,) integers, distinct among the rows that share a dynamic key.
     Returns index arrays, one per colour, in colour order, rows ascending.
 
-    In rounds (Jones and Plassmann 1993): each round takes the rows whose
+    The rounds of Jones and Plassmann (1993): each round takes the rows whose
     priority is the lowest left at each of their dynamic keys; no two of
-    them share a body.
+    them share a body (:func:`engine.core.contacts.color_in_order`).
 
     * ``first_fit=False``: each round is a colour. Sweeping the colours in
       order is then the same as sweeping the rows one after another in
@@ -59,36 +66,13 @@ def color_rows(key_a, key_b, dyn_a, dyn_b, num_keys, priority, first_fit=False) 
       a body with) whatever the order, as in Box2D v3's greedy graph
       colouring; a stack of n boxes takes 2.
     """
-    K = key_a.size
+    K = np.size(key_a)
     if K == 0:
         return []
-    color = np.full(K, -1, dtype=np.int64)
-    if first_fit:
-        used = np.zeros((num_keys, 8), dtype=bool)  # used[key, c]: colour c has a row at key
-    rounds = 0
-    rem = np.arange(K)
-    unclaimed = np.iinfo(np.int64).max
-    while rem.size:
-        ka, kb, da, db, pr = key_a[rem], key_b[rem], dyn_a[rem], dyn_b[rem], priority[rem]
-        claim = np.full(num_keys, unclaimed, dtype=np.int64)
-        np.minimum.at(claim, ka[da], pr[da])
-        np.minimum.at(claim, kb[db], pr[db])
-        ok = (~da | (claim[ka] == pr)) & (~db | (claim[kb] == pr))
-        if first_fit:
-            ka, kb, da, db = ka[ok], kb[ok], da[ok], db[ok]
-            taken = (used[ka] & da[:, None]) | (used[kb] & db[:, None])
-            if taken.all(axis=1).any():
-                used = np.concatenate((used, np.zeros_like(used)), axis=1)
-                taken = np.concatenate((taken, np.zeros_like(taken)), axis=1)
-            c = np.argmin(taken, axis=1)  # the first colour free at both keys
-            used[ka[da], c[da]] = True
-            used[kb[db], c[db]] = True
-            color[rem[ok]] = c
-        else:
-            color[rem[ok]] = rounds
-        rounds += 1
-        rem = rem[~ok]
-    count = int(color.max()) + 1
+    color = np.empty(K, dtype=np.int64)
+    seq = np.argsort(np.asarray(priority), kind="stable").astype(np.int64)
+    color_in_order(seq, np.asarray(key_a, dtype=np.int64), np.asarray(key_b, dtype=np.int64),
+                   np.asarray(dyn_a, dtype=bool), np.asarray(dyn_b, dtype=bool), int(num_keys), bool(first_fit), color)
     order = np.argsort(color, kind="stable")
-    bounds = np.searchsorted(color[order], np.arange(count + 1))
-    return [order[bounds[i]:bounds[i + 1]] for i in range(count)]
+    bounds = np.searchsorted(color[order], np.arange(int(color.max()) + 2))
+    return [order[bounds[i]:bounds[i + 1]] for i in range(bounds.size - 1)]

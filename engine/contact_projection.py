@@ -37,6 +37,9 @@ projected again from before the move, as without this projection
 with static bodies are projected: between two moving bodies the solve's
 impulses are the only arbiter of who moves.
 
+The arithmetic is the kernels' of :mod:`engine.core.projection`, one world
+at a time.
+
 Its trials on by default before these rounds and that fallback reached
 failures of other parts in the long maximum-torque runs, fixed since: the
 ball joints' limit rows grew without bound near a swing of pi
@@ -50,26 +53,25 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .collision import aabb, collide_rows, overlapping
-from .math3d import quat_rotate_inv
-from .scatter import occurrence_rank
+from .core import projection as kernels
 
 #: Rounds of the static contact projection and the joint projection in turn
 #: at a step's end (``engine.step``): the joints' closing can move another body
 #: of the chain into the ground, which the next round moves out again.
 ROUNDS = 3
 #: m: the least excess over the depth that moves a body.
-MIN_MOVE = 1e-9
+MIN_MOVE = kernels.MIN_MOVE
 
 
 class ProjectedPoints(NamedTuple):
     """The contact points of the bodies moved by ``project_static_contacts``:
     every point of their manifolds with the static shapes they were moved out
-    of; and the worlds they are in, with those worlds' positions and
-    orientations from before the move, so that a world whose joints cannot
-    follow the move can be put back."""
+    of, sorted by world (within a world: by round, pair, then slot); and the
+    worlds they are in, with those worlds' positions and orientations from
+    before the move, so that a world whose joints cannot follow the move can
+    be put back."""
 
-    world: np.ndarray   # (K,) world index
+    world: np.ndarray   # (K,) world index, ascending
     body: np.ndarray    # (K,) dynamic body index
     lever: np.ndarray   # (K, 3) m, from the body's centre to the point, in the body's frame
     normal: np.ndarray  # (K, 3) unit normal, out of the static shape
@@ -90,45 +92,29 @@ def project_static_contacts(contacts, model, state, depth: float, worlds=None) -
     if idx.size == 0 or not np.isfinite(depth):
         return None
     pos, quat = state.position, state.orientation
-    if worlds is None:
-        lo, hi = aabb(model.shape_type, model.shape_params, pos, quat)
-    else:
-        lo, hi = aabb(model.shape_type, model.shape_params, pos[worlds], quat[worlds])
-    # Boxes shrunk by depth / 2 on every side overlap only where the shapes may be that deep.
-    over = overlapping(lo, hi, contacts.pair_a[idx], contacts.pair_b[idx], -0.5 * depth)
-    s_idx, w_idx = np.nonzero(over.T)  # sorted by pair, then world
-    if worlds is not None:
-        w_idx = worlds[w_idx]
-    if w_idx.size == 0:
+    looked = (np.arange(pos.shape[0], dtype=np.int64) if worlds is None
+              else np.ascontiguousarray(worlds, dtype=np.int64))
+    L, P = looked.size, idx.size
+    normal, point = np.empty((L, P, 3)), np.empty((L, P, 4, 3))
+    excess, valid, deep = np.empty((L, P)), np.empty((L, P, 4), dtype=bool), np.empty((L, P), dtype=bool)
+    counts = np.empty((L, 2), dtype=np.int64)
+    pa, pb = contacts.static_pair_a, contacts.static_pair_b
+    kernels.find(looked, contacts.static_pair_kind, pa, pb, contacts._shape_type, contacts._shape_params, pos, quat,
+                 float(depth), contacts.unbounded_margin, np.empty((L, P), dtype=bool), np.empty((L, P)),
+                 np.empty((L, 2, 8, 3)), normal, point, np.empty((L, P, 4)), valid, excess, deep, counts)
+    ks = np.flatnonzero(counts[:, 0])
+    if ks.size == 0:
         return None
-    p_idx = idx[s_idx]
-    a, b = contacts.pair_a[p_idx], contacts.pair_b[p_idx]
-    # Exact narrow phase of those rows, every point kept (the margin is unbounded).
-    m = collide_rows(contacts.pair_kind[p_idx], pos[w_idx, a], quat[w_idx, a], model.shape_params[a],
-                     pos[w_idx, b], quat[w_idx, b], model.shape_params[b], np.inf)
-    normal, point, sep, valid = m.normal, m.point, m.separation, m.valid
-    excess = -sep.min(axis=1) - depth  # m beyond the allowed depth
-    # Not 0: a body moved out to the depth reads it again to a last bit.
-    deep = excess > MIN_MOVE
-    if not deep.any():
-        return None
-    w, a, b, n = w_idx[deep], a[deep], b[deep], normal[deep]
-    # The normal points from a to b: b moves along it, a against it.
-    moves_b = model.dynamic[b]
-    body = np.where(moves_b, b, a)
-    out = np.where(moves_b, 1.0, -1.0)[:, None] * n
-    # Every point of a moved body's manifold, however far (the margin is
-    # unbounded), goes to the metric: pinned along the normal at the points
-    # that hold it up (3 or more for a box), the body can only slide and
-    # turn in the plane, so closing its joints cannot turn another corner in.
-    k_row, k_slot = np.nonzero(valid[deep])
-    wk, bk = w[k_row], body[k_row]
-    moved = np.unique(w)
-    points = ProjectedPoints(wk, bk, quat_rotate_inv(quat[wk, bk], point[deep][k_row, k_slot] - pos[wk, bk]),
-                             out[k_row], moved, pos[moved], quat[moved])
-    shift = _moves(w, body, excess[deep], out, pos.shape)
-    pos[w, body] += shift[w, body]
-    return points
+    moved = looked[ks]
+    before = ProjectedPoints(None, None, None, None, moved, pos[moved], quat[moved])
+    offsets = np.zeros(ks.size, dtype=np.int64)
+    np.cumsum(counts[ks[:-1], 1], out=offsets[1:])
+    K = int(counts[ks, 1].sum())
+    world, body = np.empty(K, dtype=np.int64), np.empty(K, dtype=np.int64)
+    lever, out = np.empty((K, 3)), np.empty((K, 3))
+    kernels.move(ks, looked, offsets, pa, pb, model.dynamic, pos, quat, normal, point, valid, excess, deep, world,
+                 body, lever, out)
+    return before._replace(world=world, body=body, lever=lever, normal=out)
 
 
 def merged(first, then):
@@ -138,20 +124,4 @@ def merged(first, then):
     if first is None:
         return then
     n = first.position_before.shape[1]
-    keep = ~np.isin(first.world * n + first.body, then.world * n + then.body)
-    return ProjectedPoints(*(np.concatenate((x[keep], y)) for x, y in zip(first[:4], then[:4])), *first[4:])
-
-
-def _moves(w, body, excess, out, shape):
-    """Each (world, body)'s translation (shape of the positions, m): out of
-    its static shapes one after another in pair order, each move only what the
-    moves before it left, max(0, excess_i - d·n_i) n_i, so a body deep in two
-    coplanar shapes (a floor of tiles) moves out once, not twice."""
-    shift = np.zeros(shape)
-    rank = occurrence_rank(w * shape[1] + body)  # the rows are in pair order
-    for r in range(int(rank.max()) + 1):  # rows of one rank have distinct (world, body)
-        k = rank == r
-        wk, bk, nk = w[k], body[k], out[k]
-        left = np.maximum(excess[k] - (shift[wk, bk] * nk).sum(axis=-1), 0.0)
-        shift[wk, bk] += left[:, None] * nk
-    return shift
+    return ProjectedPoints(*kernels.merge(*first[:4], *then[:4], n), *first[4:])

@@ -10,9 +10,9 @@ travel in the step (speculative margin, so fast bodies do not tunnel), the
 overlap test over the candidate pairs, then the narrow phase only on the
 overlapping pairs, in one compiled kernel call over all worlds
 (:mod:`engine.core.collide.world`); the (world, pair) rows with a valid point
-are gathered flat across worlds, sorted by pair then world. The rows are
-coloured in a few vectorised rounds so that no (world, body) appears twice in
-a colour; each colour is one sweep of the solver (:mod:`engine.contact_solver`).
+are gathered flat across worlds, sorted by pair then world, and coloured
+world by world so that no (world, body) appears twice in a colour; a world's
+colours in turn are its sweep (:mod:`engine.contact_solver`).
 
 Warm-start impulses persist per (world, pair, manifold slot) in the state.
 """
@@ -24,7 +24,7 @@ import numpy as np
 from .collision import MAX_POINTS, candidate_pairs, is_canonical, kind_code
 from .contact_projection import merged, project_static_contacts
 from .contact_solver import ContactRows
-from .core.collide import detect, gather_rows
+from .core.collide import detect
 from .shapes import NONE, PLANE
 
 
@@ -79,10 +79,22 @@ class ContactSet:
         self.static_pairs = np.flatnonzero(static_pair)
         # The dynamic body of each pair with a static one.
         self.static_pair_body = np.where(model.dynamic[self.pair_a], self.pair_a, self.pair_b)[self.static_pairs]
+        # The static pairs' kind codes and bodies, and the unbounded margin of
+        # their exact narrow phase, for the static contact projection.
+        self.static_pair_kind = self.pair_kind[self.static_pairs]
+        self.static_pair_a = self.pair_a[self.static_pairs]
+        self.static_pair_b = self.pair_b[self.static_pairs]
+        self.unbounded_margin = np.full((1, self.static_pairs.size), np.inf)
         self.has_constraints = self.num_pairs > 0
         self.bounding_radius = _bounding_radius(model)
         self._shape_type = np.ascontiguousarray(model.shape_type, dtype=np.int64)
         self._shape_params = np.ascontiguousarray(model.shape_params, dtype=float)
+        # Uniform gravity (m/s²), for the rows' closing accelerations and load stiffening.
+        self.gravity = (np.array(model.gravity, dtype=float) if "gravity" in model.effects
+                        else np.zeros(3))
+        self.g_mag = float(np.linalg.norm(self.gravity))
+        # Bodies held by a joint that move.
+        self.held = self.jointed & model.dynamic
         self.effect_names = {"contacts"}
         if self.friction_on:
             self.effect_names.add("friction")
@@ -119,23 +131,14 @@ class ContactSet:
                self.pair_kind, state.position, state.orientation, state.velocity, state.angular_velocity,
                float(s.dt), float(s.speculative_distance), np.empty((W, model.num_bodies, 7)), np.empty((W, P)),
                normal, point, sep, valid, keep, state.contact_separation, np.empty((W, 2, 8, 3)))
-        # Rows of the pairs that overlap and have a valid point, sorted by pair
-        # then world, with the warm-start impulses of their valid slots.
         R = int(np.count_nonzero(keep))
-        w_idx, p_idx = np.empty(R, dtype=np.int64), np.empty(R, dtype=np.int64)
-        normal_r, point_r = np.empty((R, 3)), np.empty((R, MAX_POINTS, 3))
-        sep_r, valid_r = np.empty((R, MAX_POINTS)), np.empty((R, MAX_POINTS), dtype=bool)
-        lam_n, lam_t = np.empty((R, MAX_POINTS)), np.empty((R, MAX_POINTS, 3))
-        gather_rows(keep, normal, point, sep, valid, state.contact_normal_impulse, state.contact_friction_impulse,
-                    w_idx, p_idx, normal_r, point_r, sep_r, valid_r, lam_n, lam_t)
-        # Impulses of rows that persist were taken above; everything else restarts at 0.
-        state.contact_normal_impulse[...] = 0.0
-        state.contact_friction_impulse[...] = 0.0
         if R == 0:
+            # Impulses restart at 0 for pairs without a row.
+            state.contact_normal_impulse[...] = 0.0
+            state.contact_friction_impulse[...] = 0.0
             self.rows = None
             return
-        self.rows = ContactRows(model, state, self, w_idx, p_idx, self.pair_a[p_idx], self.pair_b[p_idx],
-                                normal_r, point_r, sep_r, valid_r, lam_n, lam_t, h)
+        self.rows = ContactRows(model, state, self, keep, normal, point, sep, valid, R, h)
 
     # ---------------------------------------------------------------- solver
     def warm_start(self, model, state):

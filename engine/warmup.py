@@ -5,8 +5,14 @@
 steps a few small scenes that between them reach every kernel on the
 default path and the other integrators (a humanoid on the ground with its
 motors, boxes, spheres and capsules on the ground, springs and universal
-gravitation), for one world and for a batch, and calls the numpy-facing
-collision functions for every pair kind. The machine code lands in
+gravitation), the Gauss-Seidel joint rows (``joint_solver="gauss_seidel"``:
+point, hinge and fixed locks, limits, breaking), the thesis's solver
+(``solver="thesis"``: its position corrections of joints and contacts),
+restitution (free and jointed bodies landing on rubber) and the static
+contact projection (a box and a humanoid's feet deep in the ground, greedy
+contact colouring), for one world and for a batch, and calls the
+numpy-facing collision functions for every pair kind and the merge of the
+projection's rounds. The machine code lands in
 numba's cache (``cache=True``: next to the sources, or under
 ``NUMBA_CACHE_DIR``), so a later process starts stepping at once. CI runs it
 once before the tests.
@@ -43,12 +49,63 @@ def scenes():
         b.add_hinge("pivot", None, "rod", anchor=(0.5, 0, 0.55), axis=(0, 1, 0), limits=(-1.0, 1.0),
                     max_torque=5.0)
         out.append((f"shapes_{integrator}", b.build()))
+    for name, settings in (("gauss_seidel", {"joint_solver": "gauss_seidel"}), ("thesis", {"solver": "thesis"})):
+        b = e.SceneBuilder(**settings)
+        b.add_ground()
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            add_humanoid(b, position=(0, 0, 0.05))
+        _breakable_chain(b, e, (2.0, 0, 0))
+        b.add_body("crate", e.Box((0.1, 0.1, 0.1)), mass=1.0, position=(-1.0, 0, 0.095))
+        b.add_body("lid", e.Box((0.1, 0.1, 0.1)), mass=1.0, position=(-1.0, 0, 0.29))
+        out.append((name, b.build()))
+    # Bodies landing on rubber within the first steps (free impacts, jointed
+    # bounces), a box and a humanoid's feet deep in the ground (the static
+    # contact projection and its rounds), greedy colouring.
+    b = e.SceneBuilder(contact_coloring="greedy")
+    b.add_ground(material="rubber")
+    b.add_body("ball", e.Sphere(0.1), mass=1.0, position=(0, 2, 0.12), velocity=(0, 0, -3.0), material="rubber")
+    b.add_body("deep", e.Box((0.2, 0.15, 0.1)), mass=2.0, position=(1.0, 2, -0.05), material="rubber")
+    b.add_body("bob", e.Box((0.05, 0.05, 0.05)), mass=1.0, position=(2.0, 2, 0.06), velocity=(0, 0, -3.0),
+               material="rubber")
+    b.add_hinge("swing", None, "bob", anchor=(2.0, 2, 1.0), axis=(0, 1, 0))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        add_humanoid(b, position=(0, 0, -0.06))
+    out.append(("bounce_and_projection", b.build()))
     b = e.SceneBuilder(gravity=None)
     b.enable("gravitation", G=1.0)
     b.add_body("sun", e.Sphere(0.1), mass=10.0, position=(0, 0, 0))
     b.add_body("planet", e.Sphere(0.01), mass=0.01, position=(1, 0, 0), velocity=(0, 3, 0))
     out.append(("gravitation", b.build()))
     return out
+
+
+def _breakable_chain(b, e, at):
+    """A chain hanging from the world: a hinge with limits, a ball with
+    swing and twist limits, a fixed joint, each breakable."""
+    x, y = at[0], at[1]
+    b.add_body("link0", e.Capsule(0.03, 0.1), mass=1.0, position=(x, y, 1.0))
+    b.add_body("link1", e.Capsule(0.03, 0.1), mass=1.0, position=(x, y, 0.74))
+    b.add_body("link2", e.Box((0.05, 0.05, 0.05)), mass=1.0, position=(x, y, 0.56))
+    b.add_hinge("top", None, "link0", anchor=(x, y, 1.13), axis=(0, 1, 0), limits=(-0.5, 0.5), break_force=1e4)
+    b.add_ball("mid", "link0", "link1", anchor=(x, y, 0.87), swing_limits=(0.5, 0.5), twist_limits=(-0.3, 0.3),
+               break_torque=1e3)
+    b.add_fixed("end", "link1", "link2", anchor=(x, y, 0.61), break_force=5.0)
+
+
+def warm_projection():
+    """Compile the merge of two rounds of the static contact projection
+    (``engine.contact_projection.merged``), which a step reaches only when a
+    second round moves a body again."""
+    from engine.contact_projection import ProjectedPoints, merged
+
+    def points(worlds, bodies):
+        worlds, bodies = np.asarray(worlds, dtype=np.int64), np.asarray(bodies, dtype=np.int64)
+        return ProjectedPoints(worlds, bodies, np.zeros((worlds.size, 3)), np.zeros((worlds.size, 3)),
+                               np.unique(worlds), np.zeros((2, 3, 3)), np.zeros((2, 3, 4)))
+
+    merged(points([0, 0, 1], [1, 2, 1]), points([0, 1], [1, 2]))
 
 
 def warm_collision():
@@ -86,8 +143,10 @@ def warm(verbose: bool = False) -> float:
         if verbose:
             print(f"warmed {name} in {time.perf_counter() - t0:.1f} s", flush=True)
     warm_collision()
+    warm_projection()
     if verbose:
-        print(f"warmed the collision functions in {time.perf_counter() - t0:.1f} s", flush=True)
+        print(f"warmed the collision functions and the projection's merge in {time.perf_counter() - t0:.1f} s",
+              flush=True)
     return time.perf_counter() - t0
 
 

@@ -23,6 +23,14 @@ one colour share no body, so this gives the same result as sweeping a
 colour's rows together. The arrays of all rows of a step are fields of a
 :class:`ContactRowArrays`; the kernels run one world per ``prange`` iteration,
 each on its own rows (``world_start``) and its own bodies.
+
+The step's rows are gathered from the detection's (world, pair) manifolds
+(``gather``), coloured world by world in row order or top down
+(``color_rows``, ``color_in_order``: the rounds of Jones and Plassmann 1993)
+and put in sweep order (``sweep_order``); at the step's end restitution's
+targets (``restitution_targets``), the thesis's position projection
+(``project_positions``) and the store of the impulses for the next warm
+start (``store``) are kernels too.
 """
 
 from __future__ import annotations
@@ -32,6 +40,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .collide.world import gather_rows
 from .jit import SERIAL_BELOW, SERIAL_ROWS_BELOW, kernel, parallel_kernel, prange
 from .vec import add, cross, dot, load3, load4, mat3_vec, quat_to_matrix, rotate, rotate_inv, scale, sub
 
@@ -589,3 +598,343 @@ def _prepare_row(R, r, p, point, lam_t, pos, ori, vel, angvel, inv_inertia, mu_s
         R.lam_t1[r, j] = dot(lt, t1)
         R.lam_t2[r, j] = dot(lt, t2)
 
+
+
+# ------------------------------------------------------------------ the step's rows
+@kernel
+def gather(keep, normal, point, separation, valid, normal_impulse, friction_impulse, pair_a, pair_b, dynamic,
+           inv_mass, held, restitution, gravity, R, p_out, point_out, lam_t_out, jointed, gravity_n):
+    """The rows of a step from its detection (:func:`engine.core.collide.detect`):
+    the (world, pair) rows with ``keep`` (W, P) set, sorted by pair then world
+    (:func:`engine.core.collide.gather_rows`), into the fields of ``R`` that
+    depend on the manifold and the model alone: world, bodies, whether each
+    moves, inverse masses (1/kg), normal, valid slots, separations (m),
+    restitution, the warm-start normal impulses (N s) of the valid slots,
+    zero ``max_lam_n`` and ``s_close``; ``p_out`` the pair, ``point_out``
+    (R, 4, 3) the points (m), ``lam_t_out`` (R, 4, 3) the warm-start friction
+    impulses, ``jointed`` (R,) whether the row touches a moving body ``held``
+    by a joint (``R.free`` its negation), ``gravity_n`` (R,) the relative
+    normal acceleration uniform ``gravity`` (m/s²) gives the bodies,
+    (n·g)(moves_b - moves_a). The state's impulses are zeroed after they are
+    read: a pair without a row this step restarts at 0. Returns whether some
+    row has restitution."""
+    gather_rows(keep, normal, point, separation, valid, normal_impulse, friction_impulse, R.w, p_out, R.n, point_out,
+                R.sep0, R.valid, R.lam_n, lam_t_out)
+    g = (gravity[0], gravity[1], gravity[2])
+    bouncy = False
+    for r in range(R.w.size):
+        p = p_out[r]
+        a, b = pair_a[p], pair_b[p]
+        R.a[r], R.b[r] = a, b
+        da, db = dynamic[a], dynamic[b]
+        R.dyn_a[r], R.dyn_b[r] = da, db
+        R.inv_ma[r], R.inv_mb[r] = inv_mass[a], inv_mass[b]
+        on_joint = held[a] or held[b]
+        jointed[r] = on_joint
+        R.free[r] = not on_joint
+        e = restitution[p]
+        R.e[r] = e
+        if e > 0.0:
+            bouncy = True
+        gravity_n[r] = dot(load3(R.n, r), g) * ((1.0 if db else 0.0) - (1.0 if da else 0.0))
+        for j in range(4):
+            R.max_lam_n[r, j] = 0.0
+            R.s_close[r, j] = 0.0
+    normal_impulse[...] = 0.0
+    friction_impulse[...] = 0.0
+    return bouncy
+
+
+@kernel
+def rows_by_world(w, num_worlds):
+    """The rows grouped by world, each world's in row order, and where each
+    world's rows start ((num_worlds + 1,)): a stable counting sort."""
+    start = np.zeros(num_worlds + 1, dtype=np.int64)
+    for r in range(w.size):
+        start[w[r] + 1] += 1
+    for k in range(num_worlds):
+        start[k + 1] += start[k]
+    fill = start[:num_worlds].copy()
+    rows = np.empty(w.size, dtype=np.int64)
+    for r in range(w.size):
+        rows[fill[w[r]]] = r
+        fill[w[r]] += 1
+    return rows, start
+
+
+@kernel
+def color_in_order(seq, key_a, key_b, dyn_a, dyn_b, num_keys, first_fit, color):
+    """Colour the rows ``seq`` (row indices in priority order, first first)
+    so that no two rows of a colour share a moving key (a (world, body));
+    static keys are shared freely. color[r] for r in seq is written.
+
+    The colours of Jones and Plassmann's rounds (1993), taken in priority
+    order: a row's round is one more than the latest round at its moving
+    keys (0 if none), i.e. the round in which every row before it at its
+    keys has been taken, so sweeping the rounds in turn sweeps the rows in
+    priority order wherever they share a body. ``first_fit``: the rows,
+    round by round, then each take the lowest colour not yet used at their
+    keys (at most Δ + 1 colours, Δ the most rows a row shares a body with,
+    as in Box2D v3's greedy graph colouring); rows of one round share no
+    key, so their order within the round does not matter."""
+    n = seq.size
+    last = np.full(num_keys, -1, dtype=np.int64)
+    for i in range(n):
+        r = seq[i]
+        c = -1
+        if dyn_a[r]:
+            c = max(c, last[key_a[r]])
+        if dyn_b[r]:
+            c = max(c, last[key_b[r]])
+        c += 1
+        color[r] = c
+        if dyn_a[r]:
+            last[key_a[r]] = c
+        if dyn_b[r]:
+            last[key_b[r]] = c
+    if not first_fit or n == 0:
+        return
+    # The rows by round (stable), then first fit; a row's first free colour
+    # is below the number of rows.
+    rounds = 0
+    for i in range(n):
+        rounds = max(rounds, color[seq[i]] + 1)
+    start = np.zeros(rounds + 1, dtype=np.int64)
+    for i in range(n):
+        start[color[seq[i]] + 1] += 1
+    for k in range(rounds):
+        start[k + 1] += start[k]
+    by_round = np.empty(n, dtype=np.int64)
+    for i in range(n):
+        k = color[seq[i]]
+        by_round[start[k]] = seq[i]
+        start[k] += 1
+    used = np.zeros((num_keys, n + 1), dtype=np.bool_)
+    for i in range(n):
+        r = by_round[i]
+        da, db = dyn_a[r], dyn_b[r]
+        ka, kb = key_a[r], key_b[r]
+        c = 0
+        while (da and used[ka, c]) or (db and used[kb, c]):
+            c += 1
+        color[r] = c
+        if da:
+            used[ka, c] = True
+        if db:
+            used[kb, c] = True
+
+
+@kernel
+def _point_or_zero(point, valid, r, j):
+    if valid[r, j]:
+        return (point[r, j, 0], point[r, j, 1], point[r, j, 2])
+    return (0.0, 0.0, 0.0)
+
+
+@kernel
+def _height_order(rows, lo, hi, point, valid, gravity):
+    """The rows rows[lo:hi] highest first against ``gravity`` (their valid
+    points' mean height; ties in row order)."""
+    n = hi - lo
+    depth = np.empty(n)  # -height: the mean point along gravity (m² / s²)
+    g = (gravity[0], gravity[1], gravity[2])
+    for i in range(n):
+        r = rows[lo + i]
+        # Σ of the valid points (0 in the others), slot by slot from slot 0.
+        s = _point_or_zero(point, valid, r, 0)
+        count = 1 if valid[r, 0] else 0
+        for j in range(1, 4):
+            s = add(s, _point_or_zero(point, valid, r, j))
+            if valid[r, j]:
+                count += 1
+        c = float(max(count, 1))
+        depth[i] = dot((s[0] / c, s[1] / c, s[2] / c), g)
+    idx = np.argsort(depth, kind="mergesort")
+    out = np.empty(n, dtype=np.int64)
+    for i in range(n):
+        out[i] = rows[lo + idx[i]]
+    return out
+
+
+@kernel
+def _color_world(R, rows, lo, hi, point, gravity, num_bodies, greedy, color):
+    """Colour world's rows rows[lo:hi] (keys: the bodies of the world): in
+    row order, or with ``greedy`` top down and first fit."""
+    if greedy:
+        color_in_order(_height_order(rows, lo, hi, point, R.valid, gravity), R.a, R.b, R.dyn_a, R.dyn_b, num_bodies,
+                       True, color)
+    else:
+        color_in_order(rows[lo:hi], R.a, R.b, R.dyn_a, R.dyn_b, num_bodies, False, color)
+
+
+@parallel_kernel
+def color_rows(R, num_worlds, num_bodies, point, gravity, greedy, color):
+    """Colour every world's rows (``_color_world``; color (R,)); returns the
+    rows by world and the worlds' starts (``rows_by_world``)."""
+    rows, start = rows_by_world(R.w, num_worlds)
+    if R.w.size < SERIAL_ROWS_BELOW:
+        for k in range(num_worlds):
+            _color_world(R, rows, start[k], start[k + 1], point, gravity, num_bodies, greedy, color)
+    else:
+        for k in prange(num_worlds):
+            _color_world(R, rows, start[k], start[k + 1], point, gravity, num_bodies, greedy, color)
+    return rows, start
+
+
+@kernel
+def sweep_order(w, color, num_worlds):
+    """The sweep order of the rows with a colour (color ≥ 0): by world, then
+    colour, then row; and where each world's rows start in it ((W + 1,))."""
+    rows, start = rows_by_world(w, num_worlds)
+    order = np.empty(w.size, dtype=np.int64)
+    world_start = np.zeros(num_worlds + 1, dtype=np.int64)
+    k = 0
+    for v in range(num_worlds):
+        world_start[v] = k
+        lo, hi = start[v], start[v + 1]
+        colors = 0
+        for i in range(lo, hi):
+            colors = max(colors, color[rows[i]] + 1)
+        if colors == 0:
+            continue
+        count = np.zeros(colors + 1, dtype=np.int64)
+        for i in range(lo, hi):
+            c = color[rows[i]]
+            if c >= 0:
+                count[c + 1] += 1
+        for c in range(colors):
+            count[c + 1] += count[c]
+        for i in range(lo, hi):
+            r = rows[i]
+            c = color[r]
+            if c >= 0:
+                order[k + count[c]] = r
+                count[c] += 1
+        k += count[colors - 1]
+    world_start[num_worlds] = k
+    return order[:k], world_start
+
+
+# ------------------------------------------------------------------ end of step
+@kernel
+def _np_max(a, b):
+    """np.maximum(a, b): a when a ≥ b or a is NaN."""
+    if a >= b or math.isnan(a):
+        return a
+    return b
+
+
+@kernel
+def add_step_impulses(R, lam_n_step, lam_t1_step, lam_t2_step):
+    """Σ of the substeps' impulses: the last substep's λ added to the sums."""
+    for r in range(R.w.size):
+        for j in range(4):
+            lam_n_step[r, j] += R.lam_n[r, j]
+            lam_t1_step[r, j] += R.lam_t1[r, j]
+            lam_t2_step[r, j] += R.lam_t2[r, j]
+
+
+@kernel
+def restitution_targets(R, gravity_n, jointed, threshold, h, lam_n_step, lam_t1_step, lam_t2_step, loaded, bounce,
+                        first_target, held, free, loaded_free, undo_n, undo_t1, undo_t2):
+    """Which points bounce, and their targets (m/s), from the closing speeds.
+
+    A row that took load while its gap s_c was still open (speculative) hit
+    at v_i = -sqrt(v_c² + 2 |a_n| s_c) under the closing part a_n of the
+    uniform gravity (``gravity_n``); a point bounces when it took load and
+    v_i < -``threshold`` on a row with restitution e > 0. Its first target
+    is -e v_i + |a_n| h: semi-implicit Euler's velocity trails its position
+    by half a substep, so a free flight under a_n returns to the surface
+    |a_n| h slower than it left, and the kick makes the next impact e v_i.
+    Outputs (R, 4): ``loaded``, ``bounce``, ``first_target``, ``held`` (the
+    bouncing points of rows on jointed bodies), ``loaded_free`` (loaded
+    points of rows on free bodies), the step's impulses λ_step + λ
+    (``undo_*``); (R,): ``free`` (rows on free bodies with a bouncing point).
+    Returns (any bounce, any held, any free)."""
+    any_bounce = any_held = any_free = False
+    for r in range(R.w.size):
+        closing_acc = _np_max(-gravity_n[r], 0.0)
+        e = R.e[r]
+        row_bounce = False
+        for j in range(4):
+            vc = R.vn_close[r, j]
+            v_imp = -math.sqrt(vc * vc + 2.0 * closing_acc * _np_max(R.s_close[r, j], 0.0))
+            if not vc < 0.0:
+                v_imp = vc
+            ld = R.max_lam_n[r, j] > 0.0 and R.valid[r, j]
+            bn = v_imp < -threshold and ld and e > 0.0
+            loaded[r, j] = ld
+            bounce[r, j] = bn
+            first_target[r, j] = -e * v_imp + closing_acc * h if bn else 0.0
+            held[r, j] = bn and jointed[r]
+            loaded_free[r, j] = ld and not jointed[r]
+            undo_n[r, j] = lam_n_step[r, j] + R.lam_n[r, j]
+            undo_t1[r, j] = lam_t1_step[r, j] + R.lam_t1[r, j]
+            undo_t2[r, j] = lam_t2_step[r, j] + R.lam_t2[r, j]
+            row_bounce = row_bounce or bn
+        free[r] = row_bounce and not jointed[r]
+        any_bounce = any_bounce or row_bounce
+        any_held = any_held or (row_bounce and jointed[r])
+        any_free = any_free or free[r]
+    return any_bounce, any_held, any_free
+
+
+@kernel
+def _project_world(R, rows, lo, hi, slop, pos, ori):
+    """``project_positions`` of one world's rows rows[lo:hi] (row order): every
+    row's depth from the positions before any move, then the a sides' moves
+    in row order, then the b sides'."""
+    depth = np.empty(hi - lo)
+    for i in range(lo, hi):
+        r = rows[i]
+        s = math.inf
+        for j in range(4):
+            if R.valid[r, j]:
+                v = separation(R, r, j, pos, ori)
+                if v < s or math.isnan(v):
+                    s = v
+            if math.isnan(s):
+                break
+        depth[i - lo] = _np_max(-(s + slop), 0.0)
+    for i in range(lo, hi):
+        r = rows[i]
+        total = _np_max(R.inv_ma[r] + R.inv_mb[r], 1e-30)
+        d = -(depth[i - lo] * R.inv_ma[r] / total)
+        a = R.a[r]
+        for c in range(3):
+            pos[a, c] += d * R.n[r, c]
+    for i in range(lo, hi):
+        r = rows[i]
+        total = _np_max(R.inv_ma[r] + R.inv_mb[r], 1e-30)
+        d = depth[i - lo] * R.inv_mb[r] / total
+        b = R.b[r]
+        for c in range(3):
+            pos[b, c] += d * R.n[r, c]
+
+
+@parallel_kernel
+def project_positions(R, rows, start, slop, pos, ori):
+    """The thesis's penetration resolution: each row's bodies moved apart along
+    the normal by its penetration beyond ``slop`` (m; its least current
+    separation over the valid points), split by inverse mass; ``rows``,
+    ``start``: the rows by world (``rows_by_world``)."""
+    if start.size - 1 < SERIAL_BELOW:
+        for w in range(start.size - 1):
+            _project_world(R, rows, start[w], start[w + 1], slop, pos[w], ori[w])
+    else:
+        for w in prange(start.size - 1):
+            _project_world(R, rows, start[w], start[w + 1], slop, pos[w], ori[w])
+
+
+@kernel
+def store(R, p, normal_impulse, friction_impulse):
+    """Each row's impulses into its (world, pair) of the state, for the next
+    step's warm start: λ_n (W, P, 4) and the friction impulse λ_t1 t1 + λ_t2 t2
+    (W, P, 4, 3), N s."""
+    for r in range(R.w.size):
+        w, q = R.w[r], p[r]
+        for j in range(4):
+            normal_impulse[w, q, j] = R.lam_n[r, j]
+            l1, l2 = R.lam_t1[r, j], R.lam_t2[r, j]
+            for c in range(3):
+                friction_impulse[w, q, j, c] = l1 * R.t1[r, c] + l2 * R.t2[r, c]

@@ -77,3 +77,52 @@ def test_color_pairs_keeps_bodies_apart():
     dynamic = np.array([False, True, True, True, True])
     colors = color_pairs(a, b, dynamic)
     _check_colouring(colors, a, b, dynamic[a], dynamic[b])
+
+
+def _rounds_reference(key_a, key_b, dyn_a, dyn_b, priority, first_fit):
+    """Jones and Plassmann's rounds taken literally: each round claims every
+    key for the lowest priority left at it and colours the rows that won all
+    their moving keys (a round per colour, or first fit within the round)."""
+    K = key_a.size
+    color = np.full(K, -1)
+    used = {}
+    rounds = 0
+    while (color < 0).any():
+        rem = np.flatnonzero(color < 0)
+        claim = {}
+        for r in rem:
+            for k, d in ((key_a[r], dyn_a[r]), (key_b[r], dyn_b[r])):
+                if d:
+                    claim[k] = min(claim.get(k, priority[r]), priority[r])
+        won = [r for r in rem if all(not d or claim[k] == priority[r]
+                                     for k, d in ((key_a[r], dyn_a[r]), (key_b[r], dyn_b[r])))]
+        for r in won:
+            if first_fit:
+                keys = [k for k, d in ((key_a[r], dyn_a[r]), (key_b[r], dyn_b[r])) if d]
+                c = 0
+                while any(c in used.get(k, ()) for k in keys):
+                    c += 1
+                for k in keys:
+                    used.setdefault(k, set()).add(c)
+                color[r] = c
+            else:
+                color[r] = rounds
+        rounds += 1
+    return [np.flatnonzero(color == c) for c in range(color.max() + 1)]
+
+
+@pytest.mark.parametrize("first_fit", [False, True])
+@pytest.mark.parametrize("seed", range(4))
+def test_the_colouring_in_priority_order_is_jones_plassmanns_rounds(seed, first_fit):
+    # The kernel takes the rows once in priority order (a row's round: one
+    # more than the latest at its keys); the rounds taken one by one give the
+    # same colours.
+    rng = np.random.default_rng(seed)
+    n, keys = 60, 25
+    key_a = rng.integers(0, keys, n)
+    key_b = (key_a + rng.integers(1, keys, n)) % keys
+    dyn = rng.random(keys) > 0.15
+    priority = rng.permutation(n)
+    got = color_rows(key_a, key_b, dyn[key_a], dyn[key_b], keys, priority, first_fit)
+    want = _rounds_reference(key_a, key_b, dyn[key_a], dyn[key_b], priority, first_fit)
+    assert [c.tolist() for c in got] == [c.tolist() for c in want]

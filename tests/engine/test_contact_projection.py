@@ -13,6 +13,7 @@ import pytest
 import engine as e
 from engine import contact_projection as cp
 from engine import math3d
+from engine.collision import collide_rows
 from engine.humanoid import add_humanoid
 from engine.math3d import quat_from_axis_angle, quat_rotate
 from tests.engine.saved_states import saved_soak_world
@@ -207,3 +208,50 @@ def test_the_rounds_step_a_world_the_same_alone_or_in_a_batch():
     e.step(model, batch, e.Control(motor=np.concatenate(motors)))
     for w in range(3):
         assert batch.worlds(w, w + 1).equal(alone[w])
+
+
+def test_the_moved_points_are_the_manifolds_points_in_the_bodys_frame():
+    # Two worlds, the box deep in world 1 only: its four corners under the
+    # ground (the exact narrow phase, every point), as lever arms in the
+    # box's frame at its position before the move, the normal out of the
+    # ground; world 0 is left alone bit for bit.
+    model, state = box_in_ground(0.15)
+    batch = state.select([0, 0])
+    batch.position[0, 1, 2] += 1.0
+    before = batch.copy()
+    moved = cp.project_static_contacts(model.contacts, model, batch, DEPTH)
+    assert moved.worlds.tolist() == [1]
+    assert np.array_equal(moved.position_before, before.position[[1]])
+    assert np.array_equal(moved.orientation_before, before.orientation[[1]])
+    assert np.array_equal(batch.position[0], before.position[0])
+    m = collide_rows(model.contacts.static_pair_kind, before.position[1, 0], before.orientation[1, 0],
+                     model.shape_params[0], before.position[1, 1], before.orientation[1, 1], model.shape_params[1],
+                     np.inf)
+    pts = m.point[0][m.valid[0]]
+    assert moved.world.tolist() == [1] * len(pts) and moved.body.tolist() == [1] * len(pts)
+    q = np.broadcast_to(before.orientation[1, 1], (len(pts), 4))
+    np.testing.assert_allclose(before.position[1, 1] + quat_rotate(q, moved.lever), pts, atol=1e-14)
+    assert np.array_equal(moved.normal, np.tile(m.normal[0], (len(pts), 1)))
+    # Out along the normal by the excess over the depth.
+    excess = -m.separation[0].min() - DEPTH
+    np.testing.assert_allclose(batch.position[1, 1] - before.position[1, 1], excess * m.normal[0], atol=1e-14)
+
+
+def test_merged_keeps_only_the_later_rounds_points_of_a_body_moved_again_world_by_world():
+    def points(world, body, tag):
+        world, body = np.array(world), np.array(body)
+        lever = np.stack([np.full(world.size, tag), world * 1.0, body * 1.0], axis=1)
+        return cp.ProjectedPoints(world, body, lever, -lever, np.unique(world), np.zeros((2, 4, 3)),
+                                  np.zeros((2, 4, 4)))
+
+    first = points([0, 0, 0, 3, 3], [1, 2, 2, 1, 2], 1.0)
+    then = points([0, 3, 3], [2, 3, 3], 2.0)
+    out = cp.merged(first, then)
+    # World 0: body 1 from the first round, body 2 only from the second;
+    # world 3: the first round's two, then the second's.
+    assert out.world.tolist() == [0, 0, 3, 3, 3, 3]
+    assert out.body.tolist() == [1, 2, 1, 2, 3, 3]
+    assert out.lever[:, 0].tolist() == [1.0, 2.0, 1.0, 1.0, 2.0, 2.0]
+    assert np.array_equal(out.normal, -out.lever)
+    assert out.worlds is first.worlds and out.position_before is first.position_before
+    assert cp.merged(None, then) is then

@@ -461,3 +461,95 @@ def test_declared_contacts_bring_friction_without_a_ground():
     box = model.body_index("box")
     assert abs(state.velocity[0, box, 0]) < 1e-6
     assert state.position[0, box, 0] == pytest.approx(v0 ** 2 / (2 * mu_k * G), rel=0.02)
+
+
+def _rows_scene(**settings):
+    """Boxes stacked on the ground and a ball on a hinge beside them, three
+    worlds at different heights (world 2 in the air)."""
+    b = e.SceneBuilder(**settings)
+    b.add_ground(material="rubber")
+    for i in range(3):
+        b.add_body(f"box{i}", e.Box((0.1, 0.1, 0.1)), mass=1.0 + i, position=(0.01 * i, 0, 0.099 + 0.199 * i),
+                   material="rubber")
+    b.add_body("ball", e.Sphere(0.1), mass=1.0, position=(0.5, 0, 0.099))
+    b.add_hinge("pin", None, "ball", anchor=(0.5, 0, 0.5), axis=(0, 1, 0))
+    model = b.build()
+    state = model.initial_state(3)
+    state.position[1, 1:, 2] -= 0.002
+    state.position[2, 1:, 2] += 1.0
+    return model, state
+
+
+def test_the_steps_rows_are_gathered_by_pair_then_world_with_their_bodies_and_warm_start():
+    model, state = _rows_scene()
+    cs = model.contacts
+    rng = np.random.default_rng(0)
+    lam_n = rng.random(state.contact_normal_impulse.shape)
+    lam_t = rng.random(state.contact_friction_impulse.shape)
+    state.contact_normal_impulse[...] = lam_n
+    state.contact_friction_impulse[...] = lam_t
+    cs.begin_step(model, state, model.settings.dt / model.settings.substeps)
+    rows = cs.rows
+    keep = np.isfinite(state.contact_separation)  # the pairs with a valid point
+    p, w = np.nonzero(keep.T)
+    assert np.array_equal(rows.p, p) and np.array_equal(rows.w, w)
+    assert not ((rows.w == 2) & ~rows.dyn_a).any()  # in the air: rows between the boxes only
+    a, b = cs.pair_a[p], cs.pair_b[p]
+    assert np.array_equal(rows.a, a) and np.array_equal(rows.b, b)
+    assert np.array_equal(rows.dyn_a, model.dynamic[a]) and np.array_equal(rows.dyn_b, model.dynamic[b])
+    assert np.array_equal(rows.inv_ma, model.inv_mass[a]) and np.array_equal(rows.inv_mb, model.inv_mass[b])
+    ball = model.body_index("ball")
+    assert np.array_equal(rows.jointed, (a == ball) | (b == ball))
+    assert np.array_equal(rows.arrays.free, ~rows.jointed)
+    assert np.array_equal(rows.e, cs.restitution[p]) and rows.bouncy
+    g = np.array(model.gravity)
+    assert np.array_equal(rows.gravity_n, (rows.n @ g) * (rows.dyn_b * 1.0 - rows.dyn_a * 1.0))
+    # The warm start of the valid slots; the state's impulses restart at 0.
+    assert np.array_equal(rows.lam_n, np.where(rows.valid, lam_n[w, p], 0.0))
+    assert np.array_equal(rows.lam_n_start, rows.lam_n)
+    assert not state.contact_normal_impulse.any() and not state.contact_friction_impulse.any()
+    assert not rows.max_lam_n.any() and not rows.s_close.any()
+
+
+@pytest.mark.parametrize("coloring", ["ordered", "greedy"])
+def test_the_sweep_order_is_by_world_then_colour_then_row_with_no_body_twice_in_a_colour(coloring):
+    model, state = _rows_scene(contact_coloring=coloring)
+    cs = model.contacts
+    h = model.settings.dt / model.settings.substeps
+    cs.begin_step(model, state, h)
+    rows = cs.rows
+    color = rows.color
+    key = (rows.w, color, np.arange(rows.w.size))
+    assert np.array_equal(rows.order, np.lexsort(key[::-1]))
+    assert np.array_equal(rows.world_start, np.searchsorted(rows.w[rows.order], np.arange(4)))
+    for c in rows.colors:
+        keys = np.concatenate(((rows.w * 10 + rows.a)[c][rows.dyn_a[c]], (rows.w * 10 + rows.b)[c][rows.dyn_b[c]]))
+        assert np.unique(keys).size == keys.size
+    # Each world's colours are those of its rows alone (keys: its bodies).
+    for w in (0, 1):
+        alone = state.select([w])
+        cs.begin_step(model, alone, h)
+        assert np.array_equal(cs.rows.color, color[rows.w == w])
+
+
+def test_the_thesis_projection_moves_a_body_out_by_its_depth_beyond_the_slop():
+    b = e.SceneBuilder(solver="thesis")
+    b.add_ground()
+    b.add_body("box", e.Box((0.1, 0.1, 0.1)), mass=1.0, position=(0, 0, 0.1 - 0.03))
+    b.add_body("light", e.Box((0.1, 0.1, 0.1)), mass=1.0, position=(1.0, 0, 0.1 - 0.01))
+    b.add_body("heavy", e.Box((0.1, 0.1, 0.1)), mass=3.0, position=(1.0, 0, 0.29 - 0.01))
+    model = b.build()
+    state = model.initial_state(1)
+    before = state.position.copy()
+    cs = model.contacts
+    cs.begin_step(model, state, model.settings.dt / model.settings.substeps)
+    cs.rows.project_positions(model, state)
+    slop = model.settings.linear_slop
+    rise = state.position[0, :, 2] - before[0, :, 2]
+    box, light, heavy = (model.body_index(n) for n in ("box", "light", "heavy"))
+    assert rise[box] == pytest.approx(0.03 - slop, abs=1e-12)
+    # The pair of boxes 1 cm into each other: 3/4 of it to the light one, 1/4 to the heavy one; the light
+    # one's ground row first lifts it by its own depth (the rows' depths are read before any move).
+    assert rise[heavy] == pytest.approx(0.25 * (0.01 - slop), abs=1e-12)
+    assert rise[light] == pytest.approx(0.01 - slop - 0.75 * (0.01 - slop), abs=1e-12)
+    assert np.array_equal(state.position[..., :2], before[..., :2])
