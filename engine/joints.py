@@ -15,7 +15,8 @@ the hinge angle is the twist angle; a ball joint's swing is an elliptic cone
 with half-angles (cone_y, cone_z) over the swing vector φ·(d_y, d_z).
 
 Constraints are split into colours at build time (no dynamic body twice in a
-colour); each colour is one vectorised sweep over worlds × joints.
+colour); the kernels (:mod:`engine.core.joint_rows`) sweep a world's joints
+colour by colour, then joint by joint.
 
 Loop-closing joints are solved with the tree, exactly, through the Schur
 complement of their rows (``engine.joint_tree``; ``joint_loops``).
@@ -235,7 +236,6 @@ class JointSet:
                                   self.anchor_p, self.anchor_c, np.ascontiguousarray(self.cone))
         self._frames_on = False  # geometry of _frames_state cached between begin_step and end_step
         self._frames = self._frames_state = None  # _frames: the JointGeometry of every joint
-        self._gs_rows = None  # _gs_limit_rows, cached with the geometry
 
     # ------------------------------------------------------------------ state
     def initial_arrays(self, W):
@@ -308,7 +308,6 @@ class JointSet:
         """Forget what was computed from the last set of positions and
         inertias (limit geometry, swing-twist, limit rows, the tree's
         factors): at the start and end of a step and when the bodies move."""
-        self._gs_rows = None
         if self.tree is not None:
             self.tree._factored = None
 
@@ -530,13 +529,6 @@ class JointSet:
         warm_start_kernel(self.arrays, self._warm_joints, self._iinv, model.inv_mass, self.geometry(state),
                           state.joint_linear_impulse, state.joint_angular_impulse, state.joint_limit_impulse,
                           state.velocity, state.angular_velocity)
-
-    def _limit_vector(self, state, idx):
-        lam = state.joint_limit_impulse[:, idx]
-        if not lam.any():
-            return 0.0
-        Jt, _, Js, _, _ = self.limit_geometry(state, idx)
-        return (lam[..., 0:1] - lam[..., 1:2]) * Jt + lam[..., 2:3] * Js
 
     def solve(self, model, state, h, use_bias):
         # The equality rows (tree and Gauss-Seidel) run in the biased solve, and
