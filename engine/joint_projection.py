@@ -57,26 +57,20 @@ from __future__ import annotations
 
 import numpy as np
 
-from .math3d import cross, inverse_or_nan, quat_exp_integrate, quat_rotate
+from .core import joint_projection as kernels
+from .core.joint_projection import (
+    ANGULAR_SLOP_LEVER,
+    CONTACT_RANGE,
+    MAX_HALVINGS,
+    MAX_TURN,
+    TOLERANCE,
+)
+from .math3d import quat_exp_integrate
 from .state import State
 
-#: m: contact points closer than this to touching add to the projection's metric.
-CONTACT_RANGE = 0.01
-#: m: the lever arm that turns the linear slop into the lock rows' angular slop (rad).
-ANGULAR_SLOP_LEVER = 0.25
-#: rad: the most a pass may turn a body. Far from the manifold the linear step
-#: overshoots: with the contact term a grounded foot is cheap to turn about its
-#: contact, and at 2 substeps (benchmarks.accuracy's ragdoll) passes turned
-#: links by 3 rad and left the anchors 0.34 m apart; with this cap 4 cm, the
-#: slop. At 0.5 rad the 100 m/s ragdoll's first step could not close 0.5 m.
-MAX_TURN = 1.0
-#: A pass that left a world's error larger is retried at half its step at most
-#: this many times (each retry one of the passes); then the world stops.
-MAX_HALVINGS = 3
-#: A world's passes stop once its error beyond the slop (the 2-norm over its
-#: joints, angular rows at ANGULAR_SLOP_LEVER) is at most this fraction of the
-#: slop; a joint must exceed the slop by more than it to start a projection.
-TOLERANCE = 0.01
+__all__ = ["ANGULAR_SLOP_LEVER", "CONTACT_RANGE", "MAX_HALVINGS", "MAX_OPENING_AFTER_MOVE", "MAX_TURN", "TOLERANCE",
+           "project_joints", "undo_unfollowed_moves"]
+
 #: m: a world whose joints the passes leave more than this beyond their slop
 #: after the static contact projection moved one of its bodies is projected
 #: again from before the move (``undo_unfollowed_moves``).
@@ -88,29 +82,39 @@ def project_joints(js, model, state, worlds=None, moved=False):
     worlds with no error beyond the slop keep their state bit for bit.
     ``worlds``: only these (ascending; None: all). ``moved``: the points the
     static contact projection moved (``ProjectedPoints``) or None; by
-    default ``model.contacts.projected``."""
+    default ``model.contacts.projected``. Each world is projected by one
+    kernel call (:mod:`engine.core.joint_projection`), so a world projects
+    bit for bit the same alone or in a batch; models with loop-closing joints
+    solved with the tree (``joint_loops`` "exact") take the numpy passes of
+    ``_project_with_loops`` on the same metric."""
     tree = js.tree
-    keep = ~tree.loop_touched[tree.component]
+    keep = _keep(tree)
     if not keep.any():
         return
     slop = _slops(js)
-    need = _worlds_beyond_slop(js, tree, state, keep, [tuple(x * (1.0 + TOLERANCE) for x in sl) for sl in slop])
-    if worlds is not None:
-        need &= np.isin(np.arange(state.num_worlds), worlds)
+    cand = (np.arange(state.num_worlds, dtype=np.int64) if worlds is None
+            else np.ascontiguousarray(worlds, dtype=np.int64))
+    need = _beyond_slop_worlds(js, tree, state, keep, slop, cand)
     if not need.any():
         return  # the usual step: no Jacobians built
-    # Only the worlds beyond the slop are projected, on a copy of their
-    # positions (each world's arithmetic is its own, so the same bits as in a
-    # projection of every world); the rest cost nothing more.
-    worlds = np.flatnonzero(need)
+    worlds = cand[need]
     if moved is False:
         moved = model.contacts.projected if model.contacts is not None else None
-    sub = _worlds_of(state, worlds)
-    _project(js, tree, sub, keep, _slops_of(slop, worlds),
-             _metric(tree, model, state, js.settings.joint_projection_contact_weight, worlds, moved),
-             js.settings.joint_projection_passes)
-    state.position[worlds] = sub.position
-    state.orientation[worlds] = sub.orientation
+    weight = float(js.settings.joint_projection_contact_weight)
+    terms = _contact_terms(model, state, weight, moved)
+    passes = int(js.settings.joint_projection_passes)
+    if js.loop_rows is None:
+        kernels.project_batch(tree.arrays, tree.layout, js.arrays, worlds, keep, slop[0][0], state.position,
+                              state.orientation, state.joint_broken, tree.M, model.mass, weight, *terms, passes,
+                              np.empty(worlds.size))
+    else:
+        N = state.position.shape[1]
+        M, M_inv = np.empty((worlds.size, tree.t.n_bodies, 6, 6)), np.empty((worlds.size, N, 6, 6))
+        kernels.metric_batch(tree.arrays, worlds, state.orientation, tree.M, model.mass, weight, *terms, M, M_inv)
+        sub = _worlds_of(state, worlds)
+        _project_with_loops(js, tree, sub, keep, _slops_of(slop, worlds), (M, M_inv), passes)
+        state.position[worlds] = sub.position
+        state.orientation[worlds] = sub.orientation
     js.positions_moved()
 
 
@@ -124,27 +128,97 @@ def undo_unfollowed_moves(js, model, state, moved, broken):
     contact projection, bit for bit; and keep whichever of the two leaves
     the smaller error."""
     tree = js.tree
-    keep = ~tree.loop_touched[tree.component]
+    keep = _keep(tree)
     if not keep.any():
         return
     slop = _slops(js)
-    err = _merit(js, tree, _worlds_of(state, moved.worlds), keep, _slops_of(slop, moved.worlds))[2]
+    err = _merits(js, tree, state, np.ascontiguousarray(moved.worlds, dtype=np.int64), keep, slop)
     redo = err > MAX_OPENING_AFTER_MOVE
     if not redo.any():
         return
-    again = moved.worlds[redo]
+    again = np.ascontiguousarray(moved.worlds[redo], dtype=np.int64)
     unmoved = State({"position": state.position.copy(), "orientation": state.orientation.copy(),
                      "joint_broken": state.joint_broken.copy()})
     unmoved.position[again] = moved.position_before[redo]
     unmoved.orientation[again] = moved.orientation_before[redo]
     unmoved.joint_broken[again] = broken[redo]
     project_joints(js, model, unmoved, again, moved=None)
-    alt_err = _merit(js, tree, _worlds_of(unmoved, again), keep, _slops_of(slop, again))[2]
+    alt_err = _merits(js, tree, unmoved, again, keep, slop)
     back = again[alt_err < err[redo]]
     if back.size:
         state.position[back] = unmoved.position[back]
         state.orientation[back] = unmoved.orientation[back]
     js.positions_moved()
+
+
+def _keep(tree):
+    """(tree joints,) bool: the joints projected, those of articulations
+    without Gauss-Seidel loop rows."""
+    return np.ascontiguousarray(~tree.loop_touched[tree.component])
+
+
+def _beyond_slop_worlds(js, tree, state, keep, slop, worlds):
+    """(len(worlds),) bool: the worlds in which an unbroken projected joint
+    (or loop-closing joint solved with the tree) is beyond its slop widened
+    by TOLERANCE (``engine.core.joint_projection.beyond_slop``)."""
+    need = np.zeros(worlds.size, dtype=bool)
+    kernels.beyond_slop_batch(tree.arrays, js.arrays, worlds, keep, slop[0][0], state.position, state.orientation,
+                              state.joint_broken, need)
+    loops = js.loop_rows
+    if loops is not None:
+        nl = loops.joints.size
+        lin = np.ascontiguousarray(np.broadcast_to(slop[1][0], (state.num_worlds, nl)))
+        more = np.zeros(worlds.size, dtype=bool)
+        kernels.beyond_slop_batch(loops.arrays, js.arrays, worlds, np.ones(nl, dtype=bool), lin, state.position,
+                                  state.orientation, state.joint_broken, more)
+        need |= more
+    return need
+
+
+def _merits(js, tree, state, worlds, keep, slop):
+    """The merit (len(worlds),) m of the given worlds of ``state``: the
+    2-norm of the errors beyond the slop, angular rows at ANGULAR_SLOP_LEVER."""
+    if js.loop_rows is not None:
+        return _merit(js, tree, _worlds_of(state, worlds), keep, _slops_of(slop, worlds))[2]
+    err = np.empty(worlds.size)
+    kernels.merit_batch(tree.arrays, js.arrays, worlds, keep, slop[0][0], state.position, state.orientation,
+                        state.joint_broken, err)
+    return err
+
+
+_NO_ROWS = (np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64),
+            np.zeros(0, dtype=bool), np.zeros(0, dtype=bool), np.zeros((0, 4, 3)), np.zeros((0, 4, 3)),
+            np.zeros((0, 3)), np.zeros((0, 4), dtype=bool), np.zeros((0, 4)))
+_NO_POINTS = (np.zeros(0, dtype=np.int64), np.zeros((0, 3)), np.zeros((0, 3)))
+
+
+def _contact_terms(model, state, weight, moved):
+    """The contact inputs of the projection's metric for the kernels
+    (``engine.core.joint_projection.metric``): the step's contact rows
+    (``ContactRows``) grouped by world, in row order within a world, with
+    their separations at ``state``; and the points the static contact
+    projection moved (``moved``, ``ProjectedPoints``, or None), by world.
+    Nothing with ``weight`` 0."""
+    W = state.num_worlds
+    rows = model.contacts.rows if model.contacts is not None and weight > 0 else None
+    if rows is None or rows.w.size == 0:
+        row_start = np.zeros(W + 1, dtype=np.int64)
+        row_terms = _NO_ROWS
+    else:
+        order = np.argsort(rows.w, kind="stable").astype(np.int64)
+        row_start = np.searchsorted(rows.w[order], np.arange(W + 1)).astype(np.int64)
+        c = np.ascontiguousarray
+        row_terms = (order, c(rows.a, dtype=np.int64), c(rows.b, dtype=np.int64), c(rows.dyn_a, dtype=bool),
+                     c(rows.dyn_b, dtype=bool), c(rows.la, dtype=float), c(rows.lb, dtype=float),
+                     c(rows.n, dtype=float), c(rows.valid, dtype=bool), c(rows.separation(state), dtype=float))
+    if moved is None or weight <= 0:
+        m_start = np.zeros(W + 1, dtype=np.int64)
+        points = _NO_POINTS
+    else:
+        m_start = np.searchsorted(moved.world, np.arange(W + 1)).astype(np.int64)
+        c = np.ascontiguousarray
+        points = (c(moved.body, dtype=np.int64), c(moved.lever, dtype=float), c(moved.normal, dtype=float))
+    return (row_start,) + row_terms + (m_start,) + points
 
 
 def _worlds_of(state, worlds):
@@ -167,16 +241,20 @@ def _slops(js):
     articulation is held tight."""
     s, tree = js.settings, js.tree
     tight = js.components_held_tight[:, tree.component]
-    lin = np.where(tight, s.joint_projection_slop, s.free_joint_projection_slop)
+    lin = np.ascontiguousarray(np.where(tight, s.joint_projection_slop, s.free_joint_projection_slop), dtype=float)
     loop = np.where(tight.any(axis=1, keepdims=True), s.joint_projection_slop, s.free_joint_projection_slop)
     return [(lin, lin / ANGULAR_SLOP_LEVER), (loop, loop / ANGULAR_SLOP_LEVER)]
 
 
-def _project(js, tree, state, keep, slop, metric, passes):
-    """At most ``passes`` Gauss-Newton passes on ``state`` (positions,
-    orientations and broken flags of the worlds being projected); ``slop`` as
-    ``_slops`` gives it, for those worlds. Returns each world's error beyond
-    the slop at the end (the merit below, m)."""
+def _project_with_loops(js, tree, state, keep, slop, metric, passes):
+    """The passes of ``engine.core.joint_projection.project`` for a model
+    with loop-closing joints solved with the tree (``js.loop_rows``), in
+    numpy: the tree rows and the loop rows solved together in the metric
+    (``tree.solve_coupled``), the merit over both. ``state``: positions,
+    orientations and broken flags of the worlds being projected; ``slop`` as
+    ``_slops`` gives it, for those worlds; ``metric``: (M, M_inv) of those
+    worlds (``engine.core.joint_projection.metric``). Returns each world's
+    merit at the end (m)."""
     tree_slop = slop[0]
     stop = TOLERANCE * np.where(keep, tree_slop[0], np.inf).min(axis=1)  # m, per world (projected joints)
     M, M_inv = metric
@@ -187,13 +265,11 @@ def _project(js, tree, state, keep, slop, metric, passes):
     before = moved = last = None
     for k in range(passes + 1):
         rows, lrows, err = _merit(js, tree, state, keep, slop)
-        a, b, Ja, Jb, mask, C = rows
+        _, _, Ja, Jb, mask, _ = rows
         back = np.zeros(state.num_worlds, dtype=bool)
         if before is not None:
-            # A pass that left a world's error larger is taken back: the
-            # linearisation does not hold that far out. The next pass tries
-            # half that step from the same start (backtracking), up to
-            # MAX_HALVINGS times, after which the world stops.
+            # A pass that left a world's error larger is taken back and tried
+            # at half its step (as in the kernel).
             worse = moved & (err > before[0])
             halvings = np.where(worse, halvings + 1, np.where(moved, 0, halvings))
             if worse.any():
@@ -208,14 +284,9 @@ def _project(js, tree, state, keep, slop, metric, passes):
             return err
         if (worlds & ~back).any():
             mask *= keep[:, None]
-            if loops is None:
-                mu = -tree._factor_solve(Ja, Jb, mask, C, M, M_inv=M_inv_tree)
-                d = np.matmul(M_inv, tree._body_impulses(Ja, Jb, mu)[..., None])[..., 0]
-            else:
-                # Loop-closing joints (solved exactly with the tree): the coupled solve in the same metric.
-                mu, mu_l = tree.solve_coupled(rows, lrows, loops, lambda v, w: np.matmul(M_inv[w], v), M, M_inv_tree)
-                imp = tree._body_impulses(Ja, Jb, -mu) + tree._body_impulses(lrows[2], lrows[3], -mu_l, loops)
-                d = np.matmul(M_inv, imp[..., None])[..., 0]
+            mu, mu_l = tree.solve_coupled(rows, lrows, loops, lambda v, w: np.matmul(M_inv[w], v), M, M_inv_tree)
+            imp = tree._body_impulses(Ja, Jb, -mu) + tree._body_impulses(lrows[2], lrows[3], -mu_l, loops)
+            d = np.matmul(M_inv, imp[..., None])[..., 0]
             # At most MAX_TURN rad for any body per pass, the whole world's step scaled alike.
             turn = np.sqrt((d[..., 3:] ** 2).sum(axis=-1)).max(axis=1)
             d *= (MAX_TURN / np.maximum(turn, MAX_TURN))[:, None, None]
@@ -233,42 +304,19 @@ def _project(js, tree, state, keep, slop, metric, passes):
 
 
 def _merit(js, tree, state, keep, slop):
-    """(tree rows, loop rows or None, merit (W,) m) of ``state``: the rows'
-    errors beyond the slop (in place of C), and the merit, the 2-norm of
-    those errors, the angular rows at the slop's lever."""
+    """(tree rows, loop rows, merit (W,) m) of ``state`` for a model with
+    loop rows solved with the tree: the rows' errors beyond the slop (in
+    place of C), and the merit, the 2-norm of those errors over both, the
+    angular rows at the slop's lever."""
     loops = js.loop_rows
     rows = tree.jacobians(js, state, True, 1.0, velocity=False, max_push_out=np.inf, max_angular_push_out=np.inf)
     C = rows[5]
     C *= keep[:, None]
     _beyond_slop(C, slop[0])
-    err = _squared_error(C)
-    lrows = None
-    if loops is not None:
-        lrows = tree.jacobians(js, state, True, 1.0, velocity=False, max_push_out=np.inf,
-                               max_angular_push_out=np.inf, rows=loops)
-        _beyond_slop(lrows[5], slop[1])
-        err = err + _squared_error(lrows[5])
-    return rows, lrows, np.sqrt(err)
-
-
-def _worlds_beyond_slop(js, tree, state, keep, slop):
-    """(W,) bool: worlds in which an active projected joint's anchor error
-    exceeds its linear slop or its lock rows' angular error its angular one
-    (``slop`` as ``_slops`` gives it). A
-    hinge's error a_p × a_c is normal to a_p, so its two lock rows hold all of
-    it; a fixed joint's rows are the whole vector; a ball joint has no lock rows."""
-    need = np.zeros(state.num_worlds, dtype=bool)
-    for rows, use, (lin_slop, ang_slop) in ((tree, keep, slop[0]), (js.loop_rows, True, slop[1])):
-        if rows is None:
-            continue
-        idx = rows.joints
-        a, b, fpw, fcw, ra, rb = js.frames(state, idx)
-        lin, ang = rows._position_errors(state, a, b, fpw, fcw, ra, rb)
-        locked = rows.ang_mask.any(axis=1)
-        beyond = ((np.sqrt((lin ** 2).sum(axis=-1)) > lin_slop)
-                  | (locked & (np.sqrt((ang ** 2).sum(axis=-1)) > ang_slop)))
-        need |= (beyond & use & (js._active(state, idx) > 0)).any(axis=1)
-    return need
+    lrows = tree.jacobians(js, state, True, 1.0, velocity=False, max_push_out=np.inf,
+                           max_angular_push_out=np.inf, rows=loops)
+    _beyond_slop(lrows[5], slop[1])
+    return rows, lrows, np.sqrt(_squared_error(C) + _squared_error(lrows[5]))
 
 
 def _squared_error(C):
@@ -283,52 +331,3 @@ def _beyond_slop(C, slop):
     for rows, allowed in ((slice(0, 3), slop[0]), (slice(3, 6), slop[1])):
         norm = np.sqrt((C[..., rows] ** 2).sum(axis=-1, keepdims=True))
         C[..., rows] *= np.maximum(0.0, 1.0 - allowed[..., None] / np.maximum(norm, 1e-300))
-
-
-def _metric(tree, model, state, weight, worlds, moved):
-    """The projection's metric on the tree's bodies (len(worlds), tree bodies,
-    6, 6) and its inverse on every body (len(worlds), N, 6, 6), zero for bodies
-    outside the tree, for the given worlds of ``state``; ``moved``: the points
-    the static contact projection moved out (``ProjectedPoints``) or None.
-    Every world takes the same arithmetic whether or not another world has
-    contacts, so a world projects bit for bit the same alone or in a batch."""
-    W, N = state.position.shape[:2]
-    P = np.zeros((W, N, 6, 6))
-    rows = model.contacts.rows if model.contacts is not None and weight > 0 else None
-    if rows is not None:
-        _add_contact_metric(P, rows, model, state, weight)
-    if moved is not None and weight > 0:
-        # The points the static contact projection just moved out (engine.contact_projection), at full weight.
-        lever = quat_rotate(state.orientation[moved.world, moved.body], moved.lever)
-        _add_point_stiffness(P, moved.world, moved.body, lever, moved.normal, weight * model.mass[moved.body])
-    M = tree.M[worlds] + P[worlds][:, tree.t.bodies]
-    # A world already diverging gets the identity: its projection is garbage,
-    # and it is reported non-finite after the step instead of stopping the batch.
-    bad = ~np.isfinite(M).all(axis=(1, 2, 3))
-    if bad.any():
-        M[bad] = np.eye(6)
-    M_inv = np.zeros((worlds.size, N, 6, 6))
-    M_inv[:, tree.t.bodies] = inverse_or_nan(M)
-    return M, M_inv
-
-
-def _add_contact_metric(P, rows, model, state, weight):
-    """Add k u uᵀ, u = (n, r × n), for every contact point within
-    CONTACT_RANGE of touching to its dynamic bodies' blocks of P (W, N, 6, 6)."""
-    sep = rows.separation(state)
-    near = rows.valid & (sep < CONTACT_RANGE)
-    ramp = np.clip((CONTACT_RANGE - sep) / CONTACT_RANGE, 0.0, 1.0)
-    for moves, body, local in ((rows.dyn_b, rows.b, rows.lb), (rows.dyn_a, rows.a, rows.la)):
-        for j in range(near.shape[1]):
-            on = near[:, j] & moves
-            if not on.any():
-                continue
-            lever = quat_rotate(state.orientation[rows.w[on], body[on]], local[on, j])  # at the current orientation
-            _add_point_stiffness(P, rows.w[on], body[on], lever, rows.n[on], weight * model.mass[body[on]] * ramp[on, j])
-
-
-def _add_point_stiffness(P, world, body, lever, normal, k):
-    """Add k u uᵀ, u = (n, r × n), to P's (world, body) blocks: a spring of
-    stiffness k against moving the point at lever r along n."""
-    u = np.concatenate((normal, cross(lever, normal)), axis=-1)
-    np.add.at(P, (world, body), k[:, None, None] * u[:, :, None] * u[:, None, :])
