@@ -20,6 +20,7 @@ once before the tests.
 
 from __future__ import annotations
 
+import math
 import time
 import warnings
 
@@ -73,6 +74,18 @@ def scenes():
         warnings.simplefilter("ignore")
         add_humanoid(b, position=(0, 0, -0.06))
     out.append(("bounce_and_projection", b.build()))
+    # A chain pinned at both ends (a loop through the world, solved with the
+    # tree: the coupled solve and the projection's loop path), lying on the ground.
+    b = e.SceneBuilder()
+    b.add_ground()
+    prev = None
+    for i in range(4):
+        b.add_body(f"link{i}", e.Capsule(0.03, 0.07), mass=1.0, position=(0.2 * i + 0.1, -2.0, 0.031),
+                   orientation=(math.cos(math.pi / 4), 0.0, math.sin(math.pi / 4), 0.0))
+        b.add_ball(f"j{i}", prev, f"link{i}", anchor=(0.2 * i, -2.0, 0.031))
+        prev = f"link{i}"
+    b.add_ball("j4", prev, None, anchor=(0.8, -2.0, 0.031))
+    out.append(("chain_loop", b.build()))
     b = e.SceneBuilder(gravity=None)
     b.enable("gravitation", G=1.0)
     b.add_body("sun", e.Sphere(0.1), mass=10.0, position=(0, 0, 0))
