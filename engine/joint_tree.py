@@ -23,7 +23,7 @@ import numpy as np
 from .core import tree as tree_kernels
 from .core import tree_solve
 from .joints import BALL, FIXED, HINGE
-from .math3d import EX, cross, inverse_or_nan, mat_vec, quat_conj, quat_mul, quat_rotate
+from .math3d import inverse_or_nan, mat_vec
 from .scatter import Scatter, scatter_add
 
 LOOP_SOLVE_BYTES = 256 * 2 ** 20  # most temporaries of one chunk of worlds in the loop solve
@@ -155,22 +155,8 @@ class _Rows:
         self.ang_mask[kind == HINGE, 1:] = 1.0
         self.ang_mask[kind == FIXED] = 1.0
         self.eq_mask = np.concatenate((np.ones((len(joints), 3)), self.ang_mask), axis=1)  # rows stored as joint impulses
-        self.hinges = np.flatnonzero(kind == HINGE)
-        self.fixed = np.flatnonzero(kind == FIXED)
         self.used_rows = np.flatnonzero(self.eq_mask.reshape(-1))  # of the joints' 6 rows each, flattened
         self.arrays = _row_arrays(joints, kind, parent, child, self.ang_mask, self.eq_mask)
-
-    def _position_errors(self, state, a, b, fpw, fcw, ra, rb):
-        """The joints' position errors: anchor separation x_b + r_b - x_a - r_a (m)
-        and the angular error vector (rad) whose lock-row components the rows
-        hold at zero: hinge a_p × a_c of the two x axes, fixed 2 vec(q_c q_p*)."""
-        lin = state.position.take(b, 1) + rb - state.position.take(a, 1) - ra
-        ax_p = quat_rotate(fpw, EX)
-        ax_c = quat_rotate(fcw, EX)
-        herr = cross(ax_p, ax_c)
-        qd = quat_mul(fcw, quat_conj(fpw))
-        ferr = 2.0 * qd[..., 1:] * np.where(qd[..., 0:1] < 0, -1.0, 1.0)
-        return lin, np.where((self.kind == HINGE)[:, None], herr, ferr)
 
 
 class _TreeSolver(_Rows):
@@ -326,9 +312,8 @@ class _TreeSolver(_Rows):
         per set of positions and metric: the relax solve of one substep and the
         biased solve of the next see the same positions (only the velocities
         change between them), so the second reuses the first's. Factors of a
-        solve before the positions moved are never reused: the relax solve on
-        the biased solve's factors let a 100 kg ball on a light chain gain
-        energy (benchmarks.stability ball_and_chain_far)."""
+        solve before the positions moved are never reused (a relax solve on
+        stale factors can add energy)."""
         W, nj, k = state.num_worlds, self.joints.size, self.limit_candidates[0].size
         S = self._scratch
         if S is None or S.mask.shape[0] != W:
@@ -393,9 +378,7 @@ class _TreeSolver(_Rows):
 
         (Baraff 1996, section 7: loops by the tree plus a small dense system).
         ``tree_rows``, ``loop_rows``: ``jacobians`` of each. One column per used
-        loop row: a 10x10 grid of ball joints pinned at two corners has 82
-        loops, 246 columns, and stepped at 74-83 ms against 31 ms with
-        Gauss-Seidel loop rows. Returns x_T (W, nj, 6), x_L (W, nl, 6).
+        loop row. Returns x_T (W, nj, 6), x_L (W, nl, 6).
 
         Its temporaries hold bodies x loop rows per world (about 5 MB for that
         grid), so the worlds go through in chunks of at most
@@ -477,11 +460,6 @@ class _TreeSolver(_Rows):
         imp = self._body_impulses(Ja, Jb, d, rows)
         state.velocity += imp[..., :3] * model.inv_mass[:, None]
         state.angular_velocity += mat_vec(self.iinv, imp[..., 3:])
-
-    def _factor_solve(self, Ja, Jb, mask, r, M=None, ball_rows=True, M_inv=None):
-        """(J M⁻¹ Jᵀ)⁻¹ r over the rows in mask (others 0); M, ``ball_rows``
-        and ``M_inv`` as in ``_factor``."""
-        return self._substitute(self._factor(Ja, Jb, mask, M, ball_rows, M_inv), r)
 
     def _factor(self, Ja, Jb, mask, M=None, ball_rows=True, M_inv=None):
         """Block LDLᵀ factors of [M Jᵀ; J 0] in leaves-first order (M: the

@@ -52,6 +52,7 @@ from .vec import (
     load3,
     load4,
     mat3_vec,
+    minimum,
     quat_conj,
     quat_mul,
     rotate,
@@ -151,7 +152,7 @@ def metric(T, rot, iinv, geo_joint, geo_parent, geo_child, n_tree_loaded, weight
                     lam = load3(lam_lin, j)
                     f = math.sqrt(lam[0] * lam[0] + lam[1] * lam[1] + lam[2] * lam[2])
                     if use_load_before:
-                        f = min(f, load_before[j])
+                        f = minimum(f, load_before[j])
                     f = f * h * weight[i]
                     r = load3(ra, j) if side == 0 else load3(rb, j)
                     body = geo_parent[i] if side == 0 else geo_child[i]
@@ -341,7 +342,7 @@ def limit_rows(T, jt, twist, js, c_swing, twist_defined, broken, iinv, w, lam_li
         for c in range(3):
             lrows[j, 0, c] = Jt[c]
             lrows[j, 1, c] = Js[c] if T.ball[j] else 0.0
-        C0 = min(C_lo, C_hi) if e0 else 0.0
+        C0 = minimum(C_lo, C_hi) if e0 else 0.0
         C1 = c_swing[jj] if e1 else 0.0
         for s in range(2):
             C = C0 if s == 0 else C1

@@ -212,3 +212,14 @@ def sym3_inverse(a00, a01, a02, a11, a12, a22):
     det = a00 * c00 + a01 * c01 + a02 * c02
     inv_det = 1.0 / det if det != 0.0 else 0.0
     return c00 * inv_det, c01 * inv_det, c02 * inv_det, c11 * inv_det, c12 * inv_det, c22 * inv_det
+
+
+@kernel
+def minimum(a, b):
+    """The smaller of two floats, NaN if either is (as ``np.minimum``; the
+    builtin ``min`` drops a NaN second argument)."""
+    if a != a:
+        return a
+    if b != b:
+        return b
+    return b if b < a else a
