@@ -40,19 +40,16 @@ import numpy as np
 
 from .jit import SERIAL_BELOW, kernel, parallel_kernel, prange
 from .tree import factor, inverse6_into, substitute
-from .tree_solve import blocks, body_impulses, right_hand_side
+from .tree_solve import blocks, body_impulses, position_errors, right_hand_side
 from .vec import (
-    add,
     cross,
     load3,
     load4,
-    quat_conj,
     quat_mul,
     quat_normalize,
     rotate,
     store3,
     store4,
-    sub,
 )
 
 #: m: contact points closer than this to touching add to the projection's metric.
@@ -162,24 +159,6 @@ def frames(T, J, x, q, fpw, fcw, ra, rb):
         store4(fcw, jj, quat_mul(qb, load4(J.frame_c, jj)))
         store3(ra, jj, rotate(qa, load3(J.anchor_p, jj)))
         store3(rb, jj, rotate(qb, load3(J.anchor_c, jj)))
-
-
-@kernel
-def position_errors(T, j, x, fpw, fcw, ra, rb):
-    """(separation, angular error) of row joint j: the anchors' separation
-    x_b + r_b - x_a - r_a (m) and the angular error whose lock-row components
-    the rows hold at zero (rad; hinge a_p × a_c of the two x axes, otherwise
-    2 vec(q_c q_p*) on the short arc)."""
-    jj, a, b = T.joint[j], T.a[j], T.b[j]
-    lin = sub(sub(add(load3(x, b), load3(rb, jj)), load3(x, a)), load3(ra, jj))
-    fp, fc = load4(fpw, jj), load4(fcw, jj)
-    if T.hinge[j]:
-        ang = cross(rotate(fp, (1.0, 0.0, 0.0)), rotate(fc, (1.0, 0.0, 0.0)))
-    else:
-        qd = quat_mul(fc, quat_conj(fp))
-        sgn = -1.0 if qd[0] < 0 else 1.0
-        ang = (2.0 * qd[1] * sgn, 2.0 * qd[2] * sgn, 2.0 * qd[3] * sgn)
-    return lin, ang
 
 
 # ------------------------------------------------------------------ one world

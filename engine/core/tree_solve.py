@@ -264,19 +264,30 @@ def right_hand_side(T, E, mask, fpw, fcw, ra, rb, x, q, v, w, use_velocity, use_
             ang = (0.0, 0.0, 0.0)
         rate = bias_rate[j]
         if use_bias and rate != 0.0:
-            sep = sub(sub(add(load3(x, b), r_b), load3(x, a)), r_a)
-            fp, fc = load4(fpw, jj), load4(fcw, jj)
-            if T.hinge[j]:
-                err = cross(rotate(fp, (1.0, 0.0, 0.0)), rotate(fc, (1.0, 0.0, 0.0)))
-            else:
-                qd = quat_mul(fc, quat_conj(fp))
-                sgn = -1.0 if qd[0] < 0 else 1.0
-                err = (2.0 * qd[1] * sgn, 2.0 * qd[2] * sgn, 2.0 * qd[3] * sgn)
+            sep, err = position_errors(T, j, x, fpw, fcw, ra, rb)
             lin = add(lin, _clamp_norm(scale(rate, sep), max_push_out))
             ang = add(ang, mat3_vec(E, j, _clamp_norm(scale(rate, err), max_angular_push_out)))
         for s in range(3):
             r_out[j, s] = lin[s] * mask[j, s]
             r_out[j, 3 + s] = ang[s] * mask[j, 3 + s]
+
+
+@kernel
+def position_errors(T, j, x, fpw, fcw, ra, rb):
+    """(separation, angular error) of row joint j: the anchors' separation
+    x_b + r_b - x_a - r_a (m) and the angular error whose lock-row components
+    the rows hold at zero (rad; hinge a_p × a_c of the two x axes, otherwise
+    2 vec(q_c q_p*) on the short arc)."""
+    jj, a, b = T.joint[j], T.a[j], T.b[j]
+    lin = sub(sub(add(load3(x, b), load3(rb, jj)), load3(x, a)), load3(ra, jj))
+    fp, fc = load4(fpw, jj), load4(fcw, jj)
+    if T.hinge[j]:
+        ang = cross(rotate(fp, (1.0, 0.0, 0.0)), rotate(fc, (1.0, 0.0, 0.0)))
+    else:
+        qd = quat_mul(fc, quat_conj(fp))
+        sgn = -1.0 if qd[0] < 0 else 1.0
+        ang = (2.0 * qd[1] * sgn, 2.0 * qd[2] * sgn, 2.0 * qd[3] * sgn)
+    return lin, ang
 
 
 @kernel
@@ -301,22 +312,20 @@ def limit_rows(T, jt, twist, js, c_swing, twist_defined, broken, iinv, w, lam_li
     (nj, 2) and lower (nj,): the twist row is the lower bound's (the bound
     the twist heads for by the substep's end)."""
     nj = T.joint.size
+    L = np.empty((nj, 3))  # the warm-started limit impulse of each joint
     for j in range(nj):
         jj = T.joint[j]
         l0, l1, l2 = lam_limit[jj, 0], lam_limit[jj, 1], lam_limit[jj, 2]
-        Jt, Js = load3(jt, jj), load3(js, jj)
-        L = add_scaled(scale(l0 - l1, Jt), l2, Js)
+        imp = add_scaled(scale(l0 - l1, load3(jt, jj)), l2, load3(js, jj))
+        for c in range(3):
+            L[j, c] = imp[c]
         a = T.a[j]
-        ia = mat3_vec(iinv, a, L)
+        ia = mat3_vec(iinv, a, imp)
         for c in range(3):
             w[a, c] += ia[c]
     for j in range(nj):
-        jj = T.joint[j]
-        l0, l1, l2 = lam_limit[jj, 0], lam_limit[jj, 1], lam_limit[jj, 2]
-        Jt, Js = load3(jt, jj), load3(js, jj)
-        L = add_scaled(scale(l0 - l1, Jt), l2, Js)
         b = T.b[j]
-        ib = mat3_vec(iinv, b, L)
+        ib = mat3_vec(iinv, b, load3(L, j))
         for c in range(3):
             w[b, c] += -ib[c]
     for j in range(nj):
