@@ -2,7 +2,7 @@
 
     python -m benchmarks.throughput [--worlds 1 16 256 1024 4096] [--scenes ...]
         [--steps N] [--repeats R] [--target-seconds S] [--quick] [--json PATH]
-        [--compare-mujoco] [--mujoco-worlds N] [--compile] [--processes P ...]
+        [--compare-mujoco] [--mujoco-worlds N] [--compile] [--threads T ...]
 
 For each scene and world count W: world-steps per second, simulated seconds
 per wall-clock second (world-steps/s x dt) and bytes per world (the state plus
@@ -12,8 +12,10 @@ the random torques (on the ground, the ragdolls have fallen and lie on many
 contact points), repeated over the W worlds; from the standing start a step
 has a few foot contacts and costs less. Without ``--steps`` the
 step count is chosen so one timed repeat lasts about ``--target-seconds``.
-With ``--processes P`` each W >= P is also stepped by ``engine.ParallelStepper``
-in P worker processes (mode ``batched-Pproc``; memory not measured there).
+Each W is stepped on each thread count T of ``--threads`` (``engine.set_threads``;
+default 1 and all cores), mode ``batched-Tthr``; a W below ``SERIAL_BELOW``
+steps on the calling thread whatever the count, so it gets one row, at the
+smallest T.
 """
 
 from __future__ import annotations
@@ -24,15 +26,19 @@ import os
 import tracemalloc
 import warnings
 
+import numba
 import numpy as np
 
-from engine import Box, Capsule, Control, ParallelStepper, SceneBuilder, Sphere, step
+from engine import Box, Capsule, Control, SceneBuilder, Sphere, get_threads, set_threads, step
+from engine.core.jit import SERIAL_BELOW
 from engine.humanoid import add_humanoid
 
 from .common import machine_note, measure, positive_float, positive_int, print_table, settings_json, write_json
 
 DEFAULT_WORLDS = (1, 16, 256, 1024, 4096)
 QUICK_WORLDS = (1, 8)
+#: thread counts of the batched rows: 1 and all cores
+DEFAULT_THREADS = tuple(sorted({1, numba.config.NUMBA_NUM_THREADS}))
 QUICK_STEPS = 3
 QUICK_REPEATS = 2
 CONTROL_BANK = 8
@@ -86,12 +92,13 @@ SCENES = {
 }
 
 
-def row(engine, mode, scene, worlds, dt, steps, seconds, repeats, bytes_per_world=None, state_bytes=None):
+def row(engine, mode, scene, worlds, dt, steps, seconds, repeats, bytes_per_world=None, state_bytes=None,
+        threads=None):
     rate = worlds * steps / seconds
     return {"engine": engine, "mode": mode, "scene": scene, "worlds": worlds, "dt_s": dt,
             "world_steps_per_s": rate, "sim_s_per_s": None if dt is None else rate * dt,
             "bytes_per_world": bytes_per_world, "state_bytes_per_world": state_bytes,
-            "steps": steps, "repeats": repeats}
+            "steps": steps, "repeats": repeats, "threads": threads}
 
 
 # ------------------------------------------------------------------ ragdoll
@@ -125,7 +132,8 @@ def settled_state(model, seconds):
     return state
 
 
-def bench_scene(name, model, worlds, start, args):
+def bench_scene(name, model, worlds, start, args, threads):
+    """W worlds of the scene stepped on ``threads`` threads (mode ``batched-Tthr``)."""
     state0 = start.select(np.arange(worlds) % start.num_worlds)
     controls = random_controls(model, worlds)
 
@@ -137,33 +145,29 @@ def bench_scene(name, model, worlds, start, args):
                 step(model, state, controls[i % len(controls)])
         return run
 
+    set_threads(threads)
     steps, seconds = measure(make_run, args.repeats, args.steps, args.target_seconds, min_steps=2)
     state_bytes = state0.nbytes() / worlds
     temp_bytes = step_peak_bytes(model, state0, controls[0]) / worlds
-    return row("ragdoll", "batched", name, worlds, model.settings.dt, steps, seconds, args.repeats,
-               state_bytes + temp_bytes, state_bytes)
+    return row("ragdoll", f"batched-{threads}thr", name, worlds, model.settings.dt, steps, seconds, args.repeats,
+               state_bytes + temp_bytes, state_bytes, threads=threads)
 
 
-def bench_parallel(name, model, worlds, processes, start, args):
-    """The same scene and controls stepped by ``engine.ParallelStepper``."""
-    state0 = start.select(np.arange(worlds) % start.num_worlds)
-    controls = random_controls(model, worlds)
-    state = state0.copy()
-    with ParallelStepper(model, state, processes) as stepper:
-        def make_run(n):
-            state.assign(slice(None), state0)
-
-            def run():
-                for i in range(n):
-                    stepper.step(controls[i % len(controls)])
-            return run
-
-        steps, seconds = measure(make_run, args.repeats, args.steps, args.target_seconds, min_steps=2)
-    return row("ragdoll", f"batched-{processes}proc", name, worlds, model.settings.dt, steps, seconds,
-               args.repeats)
+def thread_counts(worlds, threads):
+    """The thread counts W worlds are timed on: all of ``threads``, or below
+    ``SERIAL_BELOW`` worlds (stepped on the calling thread) the smallest."""
+    return sorted(threads) if worlds >= SERIAL_BELOW else [min(threads)]
 
 
 def ragdoll_rows(args, notes):
+    before = get_threads()
+    try:
+        return _ragdoll_rows(args, notes)
+    finally:
+        set_threads(before)  # the env rows step with the engine's count, as an env user would
+
+
+def _ragdoll_rows(args, notes):
     rows = []
     if args.settings:
         notes.append(f"ragdoll rows with the engine settings {json.dumps(args.settings)}")
@@ -182,12 +186,9 @@ def ragdoll_rows(args, notes):
             continue
         for worlds in args.worlds:
             try:
-                rows.append(bench_scene(name, model, worlds, start, args))
-                print(f"measured {name} W={worlds}", flush=True)
-                for processes in args.processes:
-                    if 1 < processes <= worlds:
-                        rows.append(bench_parallel(name, model, worlds, processes, start, args))
-                        print(f"measured {name} W={worlds} in {processes} processes", flush=True)
+                for threads in thread_counts(worlds, args.threads):
+                    rows.append(bench_scene(name, model, worlds, start, args, threads))
+                    print(f"measured {name} W={worlds} on {threads} thread(s)", flush=True)
             except Exception as exc:
                 notes.append(f"{name} W={worlds}: skipped, stepping failed: {type(exc).__name__}: {exc}")
                 break
@@ -281,7 +282,7 @@ def mujoco_rollout(mujoco, m, integrator, start, nthread, args):
 
         steps, seconds = measure(make_run, args.repeats, nstep)
     r = row("mujoco", f"rollout-{integrator}-{nthread}thread", "humanoid_ground", worlds, m.opt.timestep, steps,
-            seconds, args.repeats)
+            seconds, args.repeats, threads=nthread)
     r["contacts_per_world"] = _contacts_per_world(mujoco, m, start)
     return r
 
@@ -428,7 +429,8 @@ def compile_rows(notes):
             seconds = float(out.stdout.strip().splitlines()[-1])
             rows.append({"engine": "ragdoll", "mode": mode, "scene": "ragdoll_ground", "worlds": 2, "dt_s": None,
                          "world_steps_per_s": None, "sim_s_per_s": None, "bytes_per_world": None,
-                         "state_bytes_per_world": None, "steps": 1, "repeats": 1, "seconds": seconds})
+                         "state_bytes_per_world": None, "steps": 1, "repeats": 1, "threads": None,
+                         "seconds": seconds})
             print(f"measured {mode}: {seconds:.1f} s", flush=True)
     return rows
 
@@ -479,7 +481,7 @@ def ratio_lines(rows):
             if r["worlds"] >= 16 and ref:
                 ratio(r, ref, f"ragdoll_ground {r['mode']} W={r['worlds']} / mujoco humanoid_ground {ref_mode} "
                               f"W={ref['worlds']}")
-    one = next((r for r in ground if r["worlds"] == 1 and r["mode"] == "batched"), None)
+    one = next((r for r in ground if r["worlds"] == 1), None)
     for ref_mode in ("loop-implicitfast", "loop-rk4"):
         ratio(one, _find(rows, "mujoco", ref_mode), f"ragdoll_ground W=1 / mujoco humanoid_ground {ref_mode}")
     ratio(one, _find(rows, "pybullet", "loop"), "ragdoll_ground W=1 / pybullet humanoid_ground loop")
@@ -502,6 +504,18 @@ COLUMNS = [
 ]
 
 
+def thread_count(text: str) -> int:
+    """argparse type of ``--threads``: an integer in 1..NUMBA_NUM_THREADS."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = None
+    if value is None or not 1 <= value <= numba.config.NUMBA_NUM_THREADS:
+        raise argparse.ArgumentTypeError(f"must be an integer in 1..{numba.config.NUMBA_NUM_THREADS} "
+                                         f"(NUMBA_NUM_THREADS), got {text!r}")
+    return value
+
+
 def parse_args(argv):
     p = argparse.ArgumentParser(prog="python -m benchmarks.throughput", description=__doc__.split("\n")[0])
     p.add_argument("--worlds", type=positive_int, nargs="+", help=f"world counts W (default {' '.join(map(str, DEFAULT_WORLDS))})")
@@ -521,9 +535,10 @@ def parse_args(argv):
     p.add_argument("--mujoco-worlds", type=positive_int, help=f"worlds of the MuJoCo rollouts (default {MUJOCO_WORLDS})")
     p.add_argument("--settings", type=settings_json, default={}, metavar="JSON",
                    help="engine settings over each ragdoll scene's own, e.g. '{\"articulated_contacts\": false}'")
-    p.add_argument("--processes", type=positive_int, nargs="+", default=[],
-                   help="also step each W >= P in P worker processes (engine.ParallelStepper): "
-                        "rows of mode batched-Pproc")
+    p.add_argument("--threads", type=thread_count, nargs="+", default=None, metavar="T",
+                   help=f"step each W on T threads (engine.set_threads), rows of mode batched-Tthr; W below "
+                        f"{SERIAL_BELOW} steps on one thread whatever T: one row, at the smallest T (default: 1 and "
+                        f"all cores, {' '.join(map(str, DEFAULT_THREADS))})")
     args = p.parse_args(argv)
     if not args.settle_seconds >= 0:
         p.error(f"--settle-seconds must be >= 0, got {args.settle_seconds}")
@@ -534,6 +549,7 @@ def parse_args(argv):
         args.mujoco_worlds = args.mujoco_worlds or QUICK_MUJOCO_WORLDS
         args.settle_seconds = min(args.settle_seconds, 0.1)
     args.worlds = args.worlds or list(DEFAULT_WORLDS)
+    args.threads = sorted(set(args.threads or DEFAULT_THREADS))
     args.repeats = args.repeats or 3
     args.mujoco_worlds = args.mujoco_worlds or MUJOCO_WORLDS
     return args

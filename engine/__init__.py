@@ -6,7 +6,6 @@ from .core.jit import get_threads, set_threads
 from .errors import SceneError, SimulationError
 from .materials import Material, MaterialTable
 from .model import Model
-from .parallel import ParallelStepper
 from .settings import ACCURATE, CLOSED_JOINTS, SOFT_JOINTS, Settings
 from .shapes import Box, Capsule, Plane, Sphere
 from .state import Event, State

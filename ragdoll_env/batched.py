@@ -23,7 +23,10 @@ NaN stays in the batch.
 from __future__ import annotations
 
 import math
+import sys
+import warnings
 
+import numba
 import numpy as np
 
 import engine
@@ -68,18 +71,25 @@ class BatchedSim:
         to count in ``info["pushes_survived"]``.
     max_episode_steps: truncate episodes after this many env steps (None: never;
         the single env leaves this to Gymnasium's TimeLimit).
-    processes: step the worlds in this many worker processes
-        (``engine.ParallelStepper``; the same results bit for bit; default 1,
-        none). On this 2-core machine 2 processes stepped Balance-v0 (random
-        actions, 2026-12-05) 1.23x as fast as one at W = 32, 1.46x at W = 64,
-        1.65x at W = 128. Call ``close``.
+    threads: step the worlds on this many threads (1 to
+        ``NUMBA_NUM_THREADS``; the same results bit for bit; default None:
+        leave the engine's count, all cores unless ``engine.set_threads``
+        said otherwise). An int is set with ``engine.set_threads`` at the
+        start of each env step and not restored afterwards: numba keeps the
+        count per calling thread, so it stays in effect for that thread's
+        later steps, this env's or any other's. Batches below
+        ``engine.core.jit.SERIAL_BELOW`` worlds step on the calling thread
+        whatever the count.
+    processes: deprecated alias (the worlds no longer step in worker
+        processes): ``processes=P`` warns and means ``threads=min(P,
+        NUMBA_NUM_THREADS)``.
     **settings: engine accuracy settings (``dt``, ``substeps``, ... see
         :class:`engine.Settings`), defaults from the task.
     """
 
     def __init__(self, task: Task, num_worlds: int = 1, *, frame_skip=None, reset_noise_scale=None,
                  push_strength=None, push_interval=None, push_bodies=None, push_recovery_time=None,
-                 max_episode_steps=None, processes=1, **settings):
+                 max_episode_steps=None, threads=None, processes=None, **settings):
         if not isinstance(task, Task):
             raise TypeError(f"task must be a Task instance, got {task!r}")
         for name in settings:
@@ -103,6 +113,7 @@ class BatchedSim:
         if max_episode_steps is not None:
             max_episode_steps = opt.integer("max_episode_steps", max_episode_steps, minimum=1)
         self.max_episode_steps = max_episode_steps
+        self.threads = thread_count(threads, processes)
 
         values = {"dt": task.dt, "substeps": task.substeps, **settings, "check_finite": False}
         try:
@@ -128,9 +139,6 @@ class BatchedSim:
             raise ValueError("push_bodies must name at least one body when push_strength > 0")
 
         self.state = self.model.initial_state(W)
-        self.processes = opt.integer("processes", processes, minimum=1)
-        self._stepper = engine.ParallelStepper(self.model, self.state, self.processes) if min(
-            self.processes, W) > 1 else None
         self._template = self.model.initial_state(1)
         self.num_actuators = self.model.num_actuators
         self.max_torque = np.array([a.max_torque for a in self.model.actuators], dtype=np.float64)
@@ -244,10 +252,8 @@ class BatchedSim:
         return applied, impulse, body
 
     def close(self) -> None:
-        """Stop the worker processes, if any (the state keeps its values)."""
-        if self._stepper is not None:
-            self._stepper.close()
-            self._stepper = None
+        """Nothing to release: the worlds step on numba's threads, which
+        outlive the env (kept for the envs' ``close``)."""
 
     # ------------------------------------------------------------ step
     def step(self, action, active=None):
@@ -267,12 +273,11 @@ class BatchedSim:
         applied, impulse, body = self._apply_pushes(active)
         control = engine.Control(motor=a * self.max_torque)
         task, model = self.task, self.model
+        if self.threads is not None:
+            engine.set_threads(self.threads)  # for this calling thread, left set (see ``threads``)
         with np.errstate(all="ignore"):  # a world blowing up is reported in info["nonfinite"]
             for _ in range(self.frame_skip):
-                if self._stepper is None:
-                    engine.step(model, self.state, control)
-                else:
-                    self._stepper.step(control)
+                engine.step(model, self.state, control)
             obs = task.observe(model, self.state).astype(np.float32)
             healthy, terms, extra = task.evaluate(model, self.state, a)
             reward = np.zeros(W)
@@ -347,6 +352,38 @@ class BatchedSim:
             pos = np.vstack((pos, np.zeros(3)))
             quat = np.vstack((quat, [1.0, 0.0, 0.0, 0.0]))
         return renderer.render(pos, quat, target=target)
+
+
+def thread_count(threads, processes=None) -> int | None:
+    """The ``threads=`` of an env checked (None, or an int in 1 to
+    ``NUMBA_NUM_THREADS``, else ValueError naming ``threads``), or the
+    deprecated ``processes=P`` mapped to ``min(P, NUMBA_NUM_THREADS)`` with a
+    DeprecationWarning."""
+    cores = numba.config.NUMBA_NUM_THREADS
+    if processes is not None:
+        warnings.warn("processes= is deprecated: the worlds step on threads; use threads=", DeprecationWarning,
+                      stacklevel=_caller_level())
+        processes = opt.integer("processes", processes, minimum=1)
+        if threads is not None:
+            raise ValueError(f"give threads= only, not also its deprecated alias processes= (got threads={threads!r}, "
+                             f"processes={processes!r})")
+        return min(processes, cores)
+    if threads is None:
+        return None
+    n = opt.integer("threads", threads, minimum=1)
+    if n > cores:
+        raise ValueError(f"threads must be <= {cores} (NUMBA_NUM_THREADS, the threads numba has), got {threads!r}")
+    return n
+
+
+def _caller_level() -> int:
+    """``warnings.warn``'s stacklevel naming the first frame outside
+    ragdoll_env and gymnasium (the user's ``gym.make``), from the caller of
+    :func:`thread_count`."""
+    frame, level = sys._getframe(2), 2
+    while frame is not None and frame.f_globals.get("__name__", "").split(".")[0] in ("ragdoll_env", "gymnasium"):
+        frame, level = frame.f_back, level + 1
+    return level
 
 
 def world_info(info: dict, w: int) -> dict:

@@ -4,7 +4,8 @@ Every environment takes three groups of keyword arguments (``gym.make(id, **kwar
 
 * common ones, handled by the batched core (:mod:`ragdoll_env.batched`):
   ``frame_skip``, ``reset_noise_scale``, ``push_strength``, ``push_interval``,
-  ``push_bodies``, ``push_recovery_time``;
+  ``push_bodies``, ``push_recovery_time``, ``threads`` (and ``processes``,
+  its deprecated alias);
 * the engine's accuracy settings, every field of :class:`engine.Settings` but
   ``check_finite`` (the environments detect non-finite worlds themselves):
   ``dt``, ``substeps``, ``iterations``, ``relax_iterations``, ``integrator``,
@@ -30,7 +31,7 @@ SETTINGS_KEYS = tuple(f.name for f in fields(Settings) if f.name != "check_finit
 
 #: Keyword arguments of the batched core, for every task.
 COMMON_KEYS = ("frame_skip", "reset_noise_scale", "push_strength", "push_interval", "push_bodies",
-               "push_recovery_time", "processes")
+               "push_recovery_time", "threads", "processes")  # processes: threads' deprecated alias
 
 #: Rendering keyword arguments (single and vector envs).
 RENDER_KEYS = ("render_mode", "width", "height")

@@ -208,7 +208,27 @@ def read_run_config(run_dir) -> dict:
     config = saved.get("config") if isinstance(saved, dict) else None
     if isinstance(config, dict) and config.get("residual"):
         config["residual"] = residual_as_trained(config["residual"], saved.get("env_id"))
+    if isinstance(config, dict):
+        saved["config"] = run_config_threads(config, p)
     return saved
+
+
+def run_config_threads(config: dict, path) -> dict:
+    """A run's recorded ``config`` with its physics threads as this machine
+    steps them: the ``processes`` of a run recorded before the worlds stepped
+    on threads read as ``threads`` (:func:`training.configs.upgrade`), and a
+    count above ``cores()`` (a run from a larger machine) cut to
+    ``cores()``; the thread count changes no result."""
+    from .configs import upgrade
+
+    try:
+        config = upgrade(config)
+    except ValueError as exc:
+        raise TrainingError(f"{str(path)!r}: {exc}") from exc
+    threads = config.get("threads")
+    if isinstance(threads, int) and not isinstance(threads, bool) and threads > cores():
+        config = {**config, "threads": cores()}
+    return config
 
 
 _CKPT = re.compile(rf"^{CHECKPOINT_PREFIX}_(\d+)_steps\.zip$")
@@ -265,12 +285,48 @@ def model_choice(text: str) -> str:
                                      f"got {text!r}")
 
 
-def add_processes_argument(p) -> None:
-    """``--processes N`` of the evaluation CLIs."""
-    p.add_argument("--processes", type=positive_int, default=None,
-                   help="worker processes stepping each env's worlds (engine.ParallelStepper): the same results "
-                        "bit for bit, faster on several cores (default: the run's, as its config.json says; 1 "
-                        "for runs that name none)")
+def cores() -> int:
+    """The threads numba can step the worlds on (``NUMBA_NUM_THREADS``)."""
+    import numba
+
+    return int(numba.config.NUMBA_NUM_THREADS)
+
+
+def sim_threads(text: str) -> int:
+    """argparse type of ``--sim-threads``: an integer in 1..``cores()``."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = None
+    if value is None or not 1 <= value <= cores():
+        raise argparse.ArgumentTypeError(f"must be an integer in 1..{cores()} (NUMBA_NUM_THREADS), got {text!r}")
+    return value
+
+
+class _DeprecatedProcesses(argparse.Action):
+    """``--processes N``: the deprecated alias of ``--sim-threads``, as
+    ``--sim-threads min(N, cores())``, with a note on stderr."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        threads = min(values, cores())
+        print(f"note: {option_string} is deprecated: the worlds step on threads; use --sim-threads (taking "
+              f"--sim-threads {threads})", file=sys.stderr)
+        setattr(namespace, self.dest, threads)
+
+
+#: help of ``--sim-threads`` in the evaluation CLIs
+SIM_THREADS_HELP = ("physics threads stepping each env's worlds (engine.set_threads): the same results bit for bit, "
+                    "faster on several cores (default: the run's, as its config.json says; all cores for runs that "
+                    "name none)")
+
+
+def add_sim_threads_argument(p, help_text: str = SIM_THREADS_HELP) -> None:
+    """``--sim-threads N`` (and ``--processes N``, its deprecated alias) of the
+    CLIs; ``--threads`` is torch's CPU threads."""
+    p.add_argument("--sim-threads", type=sim_threads, default=None, metavar="N", help=help_text)
+    p.add_argument("--processes", type=positive_int, dest="sim_threads", action=_DeprecatedProcesses,
+                   metavar="N", help="deprecated alias of --sim-threads (the worlds no longer step in worker "
+                                     "processes): --sim-threads min(N, cores)")
 
 
 def whole_number(value, name: str, minimum: int) -> int:
@@ -283,17 +339,29 @@ def whole_number(value, name: str, minimum: int) -> int:
     return value
 
 
-def run_processes(processes, saved: dict) -> int:
-    """``processes`` if given, else the run's (``saved``: its config.json), else 1."""
-    if processes is not None:
-        return int(processes)
-    return whole_number(saved["config"].get("processes", 1), "the run's config.json: processes", 1)
+def physics_threads(value, name: str = "threads (physics threads per env)") -> int | None:
+    """A config's ``threads``: None (all cores) or a whole number in
+    1..``cores()``, else TrainingError naming ``name``."""
+    if value is None:
+        return None
+    value = whole_number(value, name, 1)
+    if value > cores():
+        raise TrainingError(f"{name} must be at most {cores()} (NUMBA_NUM_THREADS, the cores here), got {value!r}")
+    return value
 
 
-def with_processes(env_kwargs: dict, processes: int) -> dict:
-    """``env_kwargs`` for an env whose worlds step in ``processes`` worker
-    processes (this count replaces any in ``env_kwargs``)."""
-    return {**env_kwargs, "processes": int(processes)}
+def run_threads(threads, saved: dict) -> int | None:
+    """``threads`` if given, else the run's (``saved``: its config.json, read
+    by :func:`read_run_config`), else None (all cores)."""
+    if threads is not None:
+        return int(threads)
+    return physics_threads(saved["config"].get("threads"), "the run's config.json: threads")
+
+
+def with_threads(env_kwargs: dict, threads: int | None) -> dict:
+    """``env_kwargs`` for an env whose worlds step on ``threads`` physics
+    threads (None: all cores; this count replaces any in ``env_kwargs``)."""
+    return {**env_kwargs, "threads": None if threads is None else int(threads)}
 
 
 def model_for_evaluation(run_dir, which: str = "best") -> tuple[str, Path, Path | None]:

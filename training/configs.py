@@ -3,10 +3,13 @@
 Each entry has:
 
 * ``num_envs``: worlds stepped together by the batched SB3 VecEnv;
-* ``processes`` (optional, default 1): worker processes stepping those
-  worlds, for the training and the evaluation env alike
-  (``engine.ParallelStepper``: the same results bit for bit, so a run's
-  outcome does not depend on it, only its speed);
+* ``threads`` (optional, default null: all cores): physics threads stepping
+  those worlds, for the training and the evaluation env alike (the envs'
+  ``threads=``, ``engine.set_threads``: the same results bit for bit, so a
+  run's outcome does not depend on it, only its speed). ``processes``, the
+  key of the former worker processes, is read as its deprecated alias
+  (``processes: P`` is ``threads: min(P, cores)``, :func:`upgrade`), so
+  older config files and runs still load;
 * ``timesteps``: default training length (``--timesteps`` overrides);
 * ``ppo``: keyword arguments of ``stable_baselines3.PPO`` (``policy_kwargs``
   uses names for ``activation_fn``: "tanh", "relu", "elu");
@@ -40,12 +43,12 @@ Starting points (RL Baselines3 Zoo, ``hyperparams/ppo.yml``):
   gae_lambda 0.8, gamma 0.98, 20 epochs, [64, 64] networks);
 * Balance follows the Zoo's Humanoid entry (normalised observations,
   gae_lambda 0.95, ReLU [256, 256] networks; gamma 0.995, a 3.3 s horizon
-  at Balance's 60 Hz control) with more worlds per rollout (128, stepped
-  in two worker processes), a small step for the actor (lr 1e-4,
-  target_kl 0.02; its critic at 3 times that, ``critic_lr_factor`` of
-  :mod:`training.policies`), training episodes of push trials
-  (``train_env_kwargs``), and learns a residual, bounded to 0.3 of each
-  maximum torque, on the standing PD (``ragdoll_env.baselines.StandingPD``):
+  at Balance's 60 Hz control) with more worlds per rollout (128), a small
+  step for the actor (lr 1e-4, target_kl 0.02; its critic at 3 times
+  that, ``critic_lr_factor`` of :mod:`training.policies`), training
+  episodes of push trials (``train_env_kwargs``), and learns a residual,
+  bounded to 0.3 of each maximum torque, on the standing PD
+  (``ragdoll_env.baselines.StandingPD``):
   ``training.train`` zeroes the action layer of a residual policy, so the
   first policy is the PD plus exploration noise (σ = 0.3 e^-1.8 ≈ 0.05 of
   each maximum torque). Until 2026-12-06 the entry had 32 worlds in one
@@ -100,7 +103,7 @@ CONFIGS = {
     },
     "Ragdoll/Balance-v0": {
         "num_envs": 128,
-        "processes": 2,          # 128 worlds in two worker processes: 1,280 env steps/s here, 776 in one
+        "threads": None,         # physics threads: all cores (formerly "processes": 2, two worker processes)
         "timesteps": 5_000_000,
         "ppo": {
             "policy": "MlpPolicy",
@@ -138,8 +141,10 @@ CONFIGS = {
 
 
 #: the keys an entry (and the top level of a --config file) may have
-KEYS = ("num_envs", "processes", "timesteps", "ppo", "normalize", "env_kwargs", "train_env_kwargs", "residual", "eval",
+KEYS = ("num_envs", "threads", "timesteps", "ppo", "normalize", "env_kwargs", "train_env_kwargs", "residual", "eval",
         "checkpoint_freq", "policy_warmup_steps")
+#: deprecated top-level keys still read (config files and runs written before), and what replaced them
+DEPRECATED_KEYS = {"processes": "threads"}
 #: the keys of ``eval``
 EVAL_KEYS = ("freq", "episodes", "num_envs", "env_kwargs")
 #: entries whose value is a mapping: True where null is allowed as well
@@ -153,7 +158,7 @@ def check_override(override: dict) -> None:
     is not. The keys within ``ppo``, ``normalize``, ``env_kwargs`` and
     ``residual`` are checked where they are used (PPO, VecNormalize, the
     environment, :func:`ragdoll_env.residual.check_residual`)."""
-    unknown = [k for k in override if k not in KEYS]
+    unknown = [k for k in override if k not in KEYS and k not in DEPRECATED_KEYS]
     if unknown:
         ppo_keys = {k for entry in CONFIGS.values() for k in entry["ppo"]}
         hint = " (PPO settings go under \"ppo\")" if ppo_keys & set(unknown) else ""
@@ -171,9 +176,33 @@ def check_override(override: dict) -> None:
         raise ValueError(f"'eval.env_kwargs' must be a mapping or null, got {eval_kwargs!r}")
     for key, kwargs in (("env_kwargs", override.get("env_kwargs")), ("train_env_kwargs", override.get("train_env_kwargs")),
                         ("eval.env_kwargs", eval_kwargs)):
-        if "processes" in (kwargs or {}):
-            raise ValueError(f"processes goes at the top level of the config, not in {key!r}: "
-                             f"{{\"processes\": N}} steps the training and the evaluation env alike")
+        for name in ("threads", "processes"):
+            if name in (kwargs or {}):
+                raise ValueError(f"{name} goes at the top level of the config, not in {key!r}: "
+                                 f"{{\"threads\": N}} steps the training and the evaluation env alike")
+
+
+def upgrade(config: dict) -> dict:
+    """A copy of ``config`` (a --config mapping, an entry or a run's recorded
+    config) with the deprecated ``"processes": P`` (the worker processes of
+    runs before the worlds stepped on threads) as ``"threads": min(P,
+    NUMBA_NUM_THREADS)``. ValueError naming ``processes`` if P is not a whole
+    number >= 1, or if ``threads`` is given as well."""
+    if "processes" not in (config or {}):
+        return config
+    out = dict(config)
+    value = out.pop("processes")
+    if isinstance(value, float) and value.is_integer():
+        value = int(value)
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise ValueError(f"processes (deprecated: threads) must be a whole number >= 1, got {value!r}")
+    if out.get("threads") is not None:
+        raise ValueError(f"give threads only, not also processes, its deprecated alias (threads {out['threads']!r}, "
+                         f"processes {value!r})")
+    import numba
+
+    out["threads"] = min(value, numba.config.NUMBA_NUM_THREADS)
+    return out
 
 
 def merge(base: dict, override: dict) -> dict:

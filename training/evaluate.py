@@ -55,7 +55,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-episode-steps", type=C.positive_int, default=None, help="override the episode length")
     p.add_argument("--no-baselines", action="store_true", help="evaluate the agent only")
     p.add_argument("--threads", type=C.positive_int, default=1, help="torch CPU threads (default 1)")
-    C.add_processes_argument(p)
+    C.add_sim_threads_argument(p)
     return p
 
 
@@ -122,15 +122,13 @@ def baseline_names(env_id: str) -> list[str]:
     return ["zero", "pendulum_pd", "lqr"]
 
 
-def _make_venv(env_id, num_envs, seed, env_kwargs, processes=1):
+def _make_venv(env_id, num_envs, seed, env_kwargs, threads=None):
     from ragdoll_env.sb3 import make_sb3_vec_env
 
     try:
-        return make_sb3_vec_env(env_id, num_envs=num_envs, seed=seed, **C.with_processes(env_kwargs, processes))
+        return make_sb3_vec_env(env_id, num_envs=num_envs, seed=seed, **C.with_threads(env_kwargs, threads))
     except (TypeError, ValueError) as exc:
         raise C.TrainingError(f"cannot build {env_id} with {env_kwargs}: {exc}") from exc
-    except (RuntimeError, OSError) as exc:  # worker processes that cannot start
-        raise C.TrainingError(f"cannot build {env_id} in {processes} processes: {exc} (try --processes 1)") from exc
 
 
 @dataclass
@@ -149,15 +147,15 @@ class Agent:
         return self.model.predict(obs, deterministic=deterministic)[0]
 
 
-def load_agent(run, saved, num_envs, seed, env_kwargs, which="best", processes=1) -> Agent:
+def load_agent(run, saved, num_envs, seed, env_kwargs, which="best", threads=None) -> Agent:
     """The run's ``which`` model (see :func:`training.common.model_for_evaluation`) on
-    ``num_envs`` worlds seeded from ``seed`` (stepped in ``processes`` worker
-    processes), with the run's residual baseline (if any) under its
+    ``num_envs`` worlds seeded from ``seed`` (stepped on ``threads`` physics
+    threads, None: all cores), with the run's residual baseline (if any) under its
     observation normalisation, as in training."""
     env_id = saved["env_id"]
     label, model_path, vn_path = C.model_for_evaluation(run, which)
     model = C.load_ppo(model_path)
-    venv = _make_venv(env_id, num_envs, seed, env_kwargs, processes)
+    venv = _make_venv(env_id, num_envs, seed, env_kwargs, threads)
     try:
         if model.observation_space.shape != venv.observation_space.shape:
             raise C.TrainingError(f"{model_path} expects observations of shape {model.observation_space.shape}, "
@@ -169,7 +167,7 @@ def load_agent(run, saved, num_envs, seed, env_kwargs, which="best", processes=1
             vecnorm.training, vecnorm.norm_reward = False, False
             env = vecnorm
     except BaseException:
-        venv.close()  # and its worker processes
+        venv.close()
         raise
     return Agent(label, model_path, vn_path, model, env, vecnorm, venv)
 
@@ -232,8 +230,8 @@ def evaluate(args) -> dict:
     num_envs = min(args.num_envs, args.episodes)  # no idle worlds
 
     residual = saved["config"].get("residual")
-    processes = C.run_processes(args.processes, saved)
-    loaded = load_agent(run, saved, num_envs, args.seed, env_kwargs, args.model, processes)
+    threads = C.run_threads(args.sim_threads, saved)
+    loaded = load_agent(run, saved, num_envs, args.seed, env_kwargs, args.model, threads)
     try:
         changed = C.settings_changes(saved.get("engine_settings"), C.engine_settings(loaded.venv))
         if changed:
@@ -262,7 +260,7 @@ def evaluate(args) -> dict:
 
     if not args.no_baselines:
         for name in baseline_names(env_id):
-            bvenv = _make_venv(env_id, num_envs, args.seed, env_kwargs, processes)
+            bvenv = _make_venv(env_id, num_envs, args.seed, env_kwargs, threads)
             try:
                 ctrl = make_baseline(name, bvenv, **C.baseline_kwargs(name, residual, env_id))
                 result["baselines"][name] = rollout(bvenv, ctrl.act, args.episodes)

@@ -60,22 +60,22 @@ class Controller:
     agent: object = None
 
 
-def controllers(run, saved, num_envs, seed, env_kwargs, baselines, deterministic, which="best", processes=1):
+def controllers(run, saved, num_envs, seed, env_kwargs, baselines, deterministic, which="best", threads=None):
     """The run's agent, then each of ``baselines``, each on a fresh env of
     ``num_envs`` worlds seeded from ``seed`` with ``env_kwargs`` (so every
-    one meets the same initial states), stepped in ``processes`` worker
-    processes, closed once the caller moves on; ``which`` picks the run's
+    one meets the same initial states), stepped on ``threads`` physics
+    threads (None: all cores), closed once the caller moves on; ``which`` picks the run's
     model (:func:`training.common.model_for_evaluation`)."""
     from ragdoll_env.baselines import make_baseline
 
-    agent = load_agent(run, saved, num_envs, seed, env_kwargs, which, processes)
+    agent = load_agent(run, saved, num_envs, seed, env_kwargs, which, threads)
     try:
         yield Controller("agent", agent.env, agent.venv.core, partial(agent.act, deterministic=deterministic), agent)
     finally:
         agent.env.close()
     env_id, residual = saved["env_id"], saved["config"].get("residual")
     for name in baselines:
-        venv = _make_venv(env_id, num_envs, seed, env_kwargs, processes)
+        venv = _make_venv(env_id, num_envs, seed, env_kwargs, threads)
         try:
             ctrl = make_baseline(name, venv, **C.baseline_kwargs(name, residual, env_id))
             yield Controller(name, venv, venv.core, ctrl.act)
@@ -84,7 +84,7 @@ def controllers(run, saved, num_envs, seed, env_kwargs, baselines, deterministic
 
 
 def add_output_arguments(p) -> None:
-    """--model, --stochastic, --json, --plot, --threads and --processes, as
+    """--model, --stochastic, --json, --plot, --threads and --sim-threads, as
     the push sweep and the push trials take them."""
     C.add_model_argument(p)
     p.add_argument("--stochastic", dest="deterministic", action="store_false",
@@ -92,7 +92,7 @@ def add_output_arguments(p) -> None:
     p.add_argument("--json", metavar="PATH", default=None, help="write the rows as JSON here")
     p.add_argument("--plot", metavar="PNG", default=None, help="plot fall rate against strength (matplotlib)")
     p.add_argument("--threads", type=C.positive_int, default=1, help="torch CPU threads (default 1)")
-    C.add_processes_argument(p)
+    C.add_sim_threads_argument(p)
 
 
 def balance_run(run_dir) -> tuple:
@@ -115,7 +115,7 @@ def sweep(args) -> dict:
         raise C.TrainingError(f"--strengths must be >= 0 N·s, got {args.strengths}")
     t0 = time.time()
     run, saved = balance_run(args.run_dir)
-    processes = C.run_processes(args.processes, saved)
+    threads = C.run_threads(args.sim_threads, saved)
     env_id = saved["env_id"]
     base_kwargs = dict(saved["config"].get("env_kwargs") or {})
     if args.push_interval is not None:
@@ -127,7 +127,7 @@ def sweep(args) -> dict:
         env_kwargs = {**base_kwargs, "push_strength": (s, s) if s > 0 else 0.0}
         results = {}
         for ctrl in controllers(run, saved, num_envs, args.seed, env_kwargs, args.baselines, args.deterministic,
-                                args.model, processes):
+                                args.model, threads):
             results[ctrl.name] = rollout(ctrl.env, ctrl.act, args.episodes)
             if ctrl.agent is not None:
                 model_label, model_steps = ctrl.agent.label, int(ctrl.agent.model.num_timesteps)

@@ -142,7 +142,7 @@ def trials(args) -> dict:
     _check(args)
     t0 = time.time()
     run, saved = balance_run(args.run_dir)
-    processes = C.run_processes(args.processes, saved)
+    threads = C.run_threads(args.sim_threads, saved)
     bodies = list(args.bodies or BalanceTask.push_bodies)
     # no random pushes (push_bodies only checks the names: movable bodies) and no time limit
     env_kwargs = {**(saved["config"].get("env_kwargs") or {}), "push_strength": 0.0, "push_bodies": bodies,
@@ -151,7 +151,7 @@ def trials(args) -> dict:
     rows, model_label, model_steps = [], None, None
     for s in dict.fromkeys(args.strengths):
         for ctrl in controllers(run, saved, W, args.seed, env_kwargs, args.baselines, args.deterministic, args.model,
-                                processes):
+                                threads):
             if ctrl.agent is not None:
                 model_label, model_steps = ctrl.agent.label, int(ctrl.agent.model.num_timesteps)
             fell, before = run_trials(ctrl.env, ctrl.core, ctrl.act, ctrl.core.push_body_index, s, args.directions,

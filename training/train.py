@@ -40,7 +40,7 @@ import numpy as np
 from ragdoll_env.residual import check_residual
 
 from . import common as C
-from .configs import check_override, get_config, merge
+from .configs import check_override, get_config, merge, upgrade
 
 
 #: PPO settings a --config can change when resuming (the network is fixed by the checkpoint)
@@ -59,10 +59,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="total timesteps to reach (default: the env's config; with --resume the run's target)")
     p.add_argument("--num-envs", type=C.positive_int, default=None,
                    help="worlds stepped together (default: the config's; with --resume the run's)")
-    p.add_argument("--processes", type=C.positive_int, default=None,
-                   help="worker processes stepping the worlds of the training and evaluation envs; the same "
-                        "results bit for bit, only faster on several cores (default: the config's; with --resume "
-                        "the run's)")
+    C.add_sim_threads_argument(p, "physics threads stepping the worlds of the training and evaluation envs "
+                                  "(config: threads); the same results bit for bit, only faster on several cores "
+                                  "(default: the config's, all cores unless it names a count; with --resume the "
+                                  "run's)")
     p.add_argument("--seed", type=int, default=None, help="random seed (default 0; with --resume the run's)")
     p.add_argument("--out", default=None, help="run directory (default runs/<env-name>-<seed>)")
     p.add_argument("--resume", metavar="DIR", default=None,
@@ -203,23 +203,22 @@ def _make_envs(env_id, cfg, num_envs, seed, evaluation: bool = True):
     from ragdoll_env.residual import residual_vec_env
     from ragdoll_env.sb3 import make_sb3_vec_env
 
-    env_kwargs = C.with_processes(cfg.get("env_kwargs") or {}, cfg.get("processes", 1))
-    train_kwargs = {**env_kwargs, **(cfg.get("train_env_kwargs") or {})}  # processes never in it (check_override)
+    env_kwargs = C.with_threads(cfg.get("env_kwargs") or {}, cfg.get("threads"))
+    train_kwargs = {**env_kwargs, **(cfg.get("train_env_kwargs") or {})}  # threads never in it (check_override)
     venv = eval_venv = None
     try:
         venv = residual_vec_env(make_sb3_vec_env(env_id, num_envs=num_envs, seed=seed, **train_kwargs),
                                 cfg.get("residual"))
         if evaluation:
             n_eval = int(cfg["eval"].get("num_envs", 1))
-            eval_kwargs = {**env_kwargs, **(cfg["eval"].get("env_kwargs") or {})}  # no processes in it (check_override)
+            eval_kwargs = {**env_kwargs, **(cfg["eval"].get("env_kwargs") or {})}  # no threads in it (check_override)
             eval_venv = residual_vec_env(make_sb3_vec_env(env_id, num_envs=n_eval, seed=seed + 100_000, **eval_kwargs),
                                          cfg.get("residual"))
     except (TypeError, ValueError, RuntimeError, OSError) as exc:
         for v in (venv, eval_venv):
             if v is not None:
                 v.close()
-        hint = " (try --processes 1)" if isinstance(exc, (RuntimeError, OSError)) else ""
-        raise C.TrainingError(f"cannot build {env_id}: {exc}{hint}") from exc
+        raise C.TrainingError(f"cannot build {env_id}: {exc}") from exc
     venv = VecMonitor(venv)
     norm = dict(cfg.get("normalize") or {})
     eval_env = None
@@ -240,7 +239,7 @@ def _log_episodes(monitor, path: Path, env_id: str) -> None:
 
 def _check_settings(cfg: dict) -> int:
     """Validate the run-level settings of a merged config (residual, eval,
-    checkpoint and warm-up steps, processes) before anything is built;
+    checkpoint and warm-up steps, physics threads) before anything is built;
     returns the policy warm-up steps."""
     try:
         check_residual(cfg.get("residual"))
@@ -251,7 +250,7 @@ def _check_settings(cfg: dict) -> int:
         cfg["eval"]["episodes"] = C.whole_number(cfg["eval"].get("episodes"), "eval.episodes", 1)
         cfg["eval"]["num_envs"] = C.whole_number(cfg["eval"].get("num_envs", 1), "eval.num_envs", 1)
     cfg["checkpoint_freq"] = C.whole_number(cfg.get("checkpoint_freq"), "checkpoint_freq (timesteps, 0 for none)", 0)
-    cfg["processes"] = C.whole_number(cfg.get("processes", 1), "processes (worker processes per env)", 1)
+    cfg["threads"] = C.physics_threads(cfg.get("threads"), "threads (physics threads per env)")
     warmup = cfg.get("policy_warmup_steps")
     return 0 if warmup is None else C.whole_number(warmup, "policy_warmup_steps (timesteps)", 0)
 
@@ -306,6 +305,7 @@ def train(args) -> dict:
     override = C.load_config_file(args.config) if args.config else {}
     try:
         check_override(override)
+        override = upgrade(override)  # a deprecated "processes" as "threads"
     except ValueError as exc:
         raise C.TrainingError(f"config file {str(args.config)!r}: {exc}") from exc
 
@@ -344,8 +344,8 @@ def train(args) -> dict:
         cfg["eval"]["episodes"] = args.eval_episodes
     if args.checkpoint_freq is not None:
         cfg["checkpoint_freq"] = args.checkpoint_freq
-    if args.processes is not None:
-        cfg["processes"] = args.processes
+    if args.sim_threads is not None:
+        cfg["threads"] = args.sim_threads
     warmup = _check_settings(cfg)
     if args.resume and total <= done:
         print(f"{run}: already at {done} timesteps, the requested total is {total}: nothing to do, the run is "

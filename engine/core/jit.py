@@ -7,6 +7,14 @@ machine code next to the source (``cache=True``), keep IEEE semantics
 multiply-adds, so a result never depends on how a loop was vectorised) and
 return inf/NaN on a division by zero instead of raising
 (``error_model="numpy"``); denominators are guarded where it matters.
+
+A batched step (W >= ``SERIAL_BELOW`` worlds) runs its ``prange`` loops on
+numba's worker threads, each world on one thread from start to end, so the
+thread count changes no bit; ``set_threads`` chooses it (default: all cores,
+``NUMBA_NUM_THREADS``). The threading layer is GNU OpenMP where it loads
+(its launch is cheap; see below): after a batched step in a process, its
+``fork()``ed children must not run batched steps (use the ``spawn`` or
+``forkserver`` start methods).
 """
 
 from __future__ import annotations
@@ -16,14 +24,28 @@ import os
 
 import numba
 
-# engine.ParallelStepper forks worker processes that step with these kernels.
-# GNU OpenMP (numba's "omp" layer on Linux) terminates a forked child that
-# enters a parallel region once its parent has used one; "forksafe" takes TBB
-# where it is installed and numba's own workqueue otherwise, both safe across
-# fork. Set before any parallel kernel runs, which is when numba loads the
-# layer; an explicit NUMBA_THREADING_LAYER is kept.
-if "NUMBA_THREADING_LAYER" not in os.environ:
-    numba.config.THREADING_LAYER = "forksafe"
+# The threading layer: GNU OpenMP ("omp") first. A step makes about 60
+# parallel-kernel calls, and a launch costs about 10 us on omp against about
+# 150 us on numba's own workqueue (TBB: pip's tbb puts libtbb outside the
+# loader path, so numba cannot load it here): at W = 64 the lying ragdoll's
+# step fell from 43 to 24.5 ms. numba tries the layers in this order and takes
+# the first that loads, so a machine without libgomp falls back to TBB, then
+# to workqueue, instead of failing. Set before any parallel kernel runs, which
+# is when numba loads the layer; an explicit NUMBA_THREADING_LAYER or
+# NUMBA_THREADING_LAYER_PRIORITY is kept. OpenMP's idle workers spin: while
+# another process holds a core, a 2-thread batched step can be much slower
+# than a 1-thread one (here at W = 16: 570 against 12 ms a step); take
+# set_threads(1) on a machine that busy.
+#
+# The fork caveat: GNU OpenMP terminates a fork()ed child that enters a
+# parallel region once its parent has used one ("Terminating: fork() called
+# from a process already using GNU OpenMP, this is unsafe."). After a batched
+# step (W >= SERIAL_BELOW) in a process, children that run batched steps must
+# be started with the "spawn" or "forkserver" multiprocessing start methods,
+# not "fork". The worlds step on threads instead (set_threads).
+if "NUMBA_THREADING_LAYER" not in os.environ and "NUMBA_THREADING_LAYER_PRIORITY" not in os.environ:
+    numba.config.THREADING_LAYER_PRIORITY = ["omp", "tbb", "workqueue"]
+    numba.config.THREADING_LAYER = "default"
 
 kernel = numba.njit(cache=True, fastmath=False, error_model="numpy", nogil=True)
 parallel_kernel = numba.njit(cache=True, fastmath=False, error_model="numpy", nogil=True, parallel=True)
@@ -41,7 +63,9 @@ def set_threads(n: int | None = None) -> int:
     """Use ``n`` threads for batched steps (None: all cores numba sees).
 
     The thread count changes no bit of any trajectory: each world is stepped
-    by one thread from start to end. Returns the count now in use.
+    by one thread from start to end. The count is numba's, which keeps one
+    per calling thread: it applies to the steps this thread makes (another
+    Python thread starts with all cores). Returns the count now in use.
     """
     if n is None:
         n = numba.config.NUMBA_NUM_THREADS

@@ -10,6 +10,7 @@ import re
 import shlex
 from pathlib import Path
 
+import numba
 import pytest
 
 from benchmarks import accuracy, effects, stability, throughput
@@ -107,11 +108,18 @@ def test_accuracy_bad_numbers_are_usage_errors(capsys, argv):
 @pytest.mark.parametrize("argv", [
     ["--repeats", "0"],  # was taken as "not given": 3 repeats
     ["--quick", "--steps", "0"],  # was taken as "not given": 3 steps
-    ["--worlds", "1", "0"], ["--mujoco-worlds", "-4"], ["--target-seconds", "nan"], ["--processes", "0"],
+    ["--worlds", "1", "0"], ["--mujoco-worlds", "-4"], ["--target-seconds", "nan"], ["--threads", "0"],
+    ["--threads", "1", str(numba.config.NUMBA_NUM_THREADS + 1)], ["--threads", "two"],
 ])
 def test_throughput_bad_numbers_are_usage_errors(capsys, argv):
     err = usage_error(capsys, throughput.parse_args, argv)
     assert "argument " + next(a for a in reversed(argv) if a.startswith("--")) in err
+
+
+def test_throughput_threads_default_to_one_and_all_cores():
+    cores = numba.config.NUMBA_NUM_THREADS
+    assert throughput.parse_args([]).threads == sorted({1, cores})
+    assert throughput.parse_args(["--threads", str(cores), "1", "1"]).threads == sorted({1, cores})
 
 
 @pytest.mark.parametrize("argv", [

@@ -1,12 +1,14 @@
 import json
 import math
 
+import numba
 import pytest
 
-from benchmarks.throughput import main
+from benchmarks.throughput import DEFAULT_THREADS, main
 
-KEYS = {"engine", "mode", "scene", "worlds", "dt_s", "world_steps_per_s", "sim_s_per_s", "bytes_per_world"}
-MODES = {"batched", "batched-2proc", "loop", "loop-rk4", "loop-implicitfast", "rollout-rk4-1thread",
+KEYS = {"engine", "mode", "scene", "worlds", "dt_s", "world_steps_per_s", "sim_s_per_s", "bytes_per_world", "threads"}
+CORES = numba.config.NUMBA_NUM_THREADS
+MODES = {*(f"batched-{t}thr" for t in range(1, CORES + 1)), "loop", "loop-rk4", "loop-implicitfast", "rollout-rk4-1thread",
          "rollout-rk4-2thread", "rollout-implicitfast-1thread", "rollout-implicitfast-2thread", "env", "vector-env",
          "cold-compile", "warm-start"}
 
@@ -17,6 +19,8 @@ def check_rows(rows):
         assert KEYS <= r.keys()
         assert r["engine"] in ("ragdoll", "mujoco", "pybullet")
         assert r["mode"] in MODES
+        if r["mode"].startswith("batched"):
+            assert r["mode"] == f"batched-{r['threads']}thr"
         assert isinstance(r["worlds"], int) and r["worlds"] >= 1
         if r["mode"] in ("cold-compile", "warm-start"):
             assert math.isfinite(r["seconds"]) and r["seconds"] > 0
@@ -33,8 +37,13 @@ def test_quick_run_writes_rows(tmp_path, capsys):
     check_rows(rows)
     scenes = {r["scene"] for r in rows}
     assert {"free_bodies", "ragdoll_air"} <= scenes
+    # 1 thread and all cores at W = 8 (SERIAL_BELOW, the prange path), one thread at W = 1 (stepped serially)
+    assert DEFAULT_THREADS == tuple(sorted({1, CORES}))
+    for scene in scenes:
+        assert sorted((r["worlds"], r["threads"]) for r in rows if r["scene"] == scene) == [
+            (1, 1)] + [(8, t) for t in DEFAULT_THREADS]
     for r in rows:
-        assert r["mode"] == "batched" and r["worlds"] in (1, 8)
+        assert r["engine"] == "ragdoll" and r["mode"] == f"batched-{r['threads']}thr" and r["worlds"] in (1, 8)
         assert r["bytes_per_world"] > 0 and r["sim_s_per_s"] > 0
     assert "world-steps/s" in capsys.readouterr().out
 
@@ -49,7 +58,7 @@ def test_quick_mujoco_comparison(tmp_path):
     modes = {(r["engine"], r["mode"]) for r in rows}
     assert {("mujoco", f"{kind}-{integrator}{threads}") for integrator in ("rk4", "implicitfast")
             for kind, threads in (("loop", ""), ("rollout", "-1thread"), ("rollout", "-2thread"))} <= modes
-    assert {("mujoco", "env"), ("mujoco", "vector-env"), ("ragdoll", "batched")} <= modes
+    assert {("mujoco", "env"), ("mujoco", "vector-env"), ("ragdoll", "batched-1thr")} <= modes
     assert {r["scene"] for r in rows if r["mode"] == "env"} >= {"Humanoid-v5", "InvertedPendulum-v5"}
     # Timed lying on the ground, as the ragdoll is: a fallen humanoid touches it at several points.
     for r in rows:
@@ -57,10 +66,16 @@ def test_quick_mujoco_comparison(tmp_path):
             assert r["scene"] == "humanoid_ground" and r["contacts_per_world"] >= 2
 
 
-def test_quick_run_in_two_processes(tmp_path):
+@pytest.mark.skipif(CORES < 2, reason="needs 2 threads")
+def test_quick_run_on_two_threads(tmp_path):
+    import engine
+
+    before = engine.get_threads()
     path = tmp_path / "throughput.json"
-    main(["--quick", "--scenes", "ragdoll_ground", "--worlds", "1", "4", "--processes", "2", "--json", str(path)])
+    main(["--quick", "--scenes", "ragdoll_ground", "--worlds", "1", "4", "16", "--threads", "2", "--json", str(path)])
     rows = json.loads(path.read_text())
     check_rows(rows)
-    # W = 1 has no second process to use: only one-process rows there.
-    assert sorted((r["mode"], r["worlds"]) for r in rows) == [("batched", 1), ("batched", 4), ("batched-2proc", 4)]
+    # W below SERIAL_BELOW (8) steps on the calling thread whatever the count: one row each, at the smallest T.
+    assert sorted((r["mode"], r["worlds"], r["threads"]) for r in rows) == [
+        ("batched-2thr", 1, 2), ("batched-2thr", 4, 2), ("batched-2thr", 16, 2)]
+    assert engine.get_threads() == before  # the benchmark restores the thread count

@@ -1,15 +1,30 @@
-"""engine.ParallelStepper: the worlds of one state stepped in worker processes."""
+"""Batched steps on threads (what replaced engine.ParallelStepper's worker
+processes): numba's threading layer, the thread count per calling thread,
+and the bits of a batched step on one and on two threads."""
 
 from __future__ import annotations
 
-import re
+import json
+import multiprocessing as mp
+import os
+import subprocess
+import sys
+import threading
 import warnings
+from pathlib import Path
 
+import numba
 import numpy as np
 import pytest
 
 import engine as e
+from engine.core.jit import SERIAL_BELOW, get_threads, set_threads
 from engine.humanoid import add_humanoid
+
+REPO = Path(__file__).resolve().parents[2]
+TWO_THREADS = pytest.mark.skipif(numba.config.NUMBA_NUM_THREADS < 2, reason="needs 2 threads")
+#: W: enough worlds for the kernels' prange loops (SERIAL_BELOW and more steps on the calling thread)
+W = 2 * SERIAL_BELOW
 
 
 def ragdoll_on_ground():
@@ -21,68 +36,6 @@ def ragdoll_on_ground():
     return b.build()
 
 
-def random_controls(model, worlds, steps, seed=0):
-    rng = np.random.default_rng(seed)
-    max_torque = np.array([a.max_torque for a in model.actuators])
-    return [e.Control(motor=rng.uniform(-1, 1, (worlds, model.num_actuators)) * max_torque) for _ in range(steps)]
-
-
-def test_parallel_steps_are_bit_identical_to_one_process():
-    # 5 worlds over 2 workers (3 + 2): the ragdoll on the ground under random
-    # torques, with contacts, limits and the joint post-stabilisation at work.
-    model = ragdoll_on_ground()
-    controls = random_controls(model, 5, 40)
-    serial, shared = model.initial_state(5), model.initial_state(5)
-    for c in controls:
-        e.step(model, serial, c)
-    with e.ParallelStepper(model, shared, processes=2) as stepper:
-        assert stepper.processes == 2
-        for c in controls:
-            assert stepper.step(c) is shared
-        assert shared.equal(serial)
-    assert shared.equal(serial)  # close keeps the values
-    assert np.abs(serial.position - model.initial_state(5).position).max() > 0.05  # it moved
-
-
-def test_workers_run_parallel_kernels_after_the_parent_did():
-    """The parent steps a batch large enough for the kernels' parallel loop,
-    then forks workers with as many worlds each: they step it too (a forked
-    child of a process that used GNU OpenMP is terminated when it enters a
-    parallel region; the kernels' threading layer is one that survives fork),
-    bit for bit as one process."""
-    from engine.core.jit import SERIAL_BELOW
-
-    model = ragdoll_on_ground()
-    W = 2 * SERIAL_BELOW
-    controls = random_controls(model, W, 4, seed=2)
-    serial = model.initial_state(W)
-    e.step(model, serial, controls[0])  # the parallel loop, in the parent
-    shared = serial.copy()
-    for c in controls[1:]:
-        e.step(model, serial, c)
-    with e.ParallelStepper(model, shared, processes=2) as stepper:
-        for c in controls[1:]:
-            stepper.step(c)
-        assert shared.equal(serial)
-
-
-def test_the_parent_writes_between_steps_reach_the_workers():
-    model = ragdoll_on_ground()
-    controls = random_controls(model, 4, 10, seed=1)
-    serial, shared = model.initial_state(4), model.initial_state(4)
-    push = np.array([0.0, 30.0, 0.0])
-    with e.ParallelStepper(model, shared, processes=2) as stepper:
-        for k, c in enumerate(controls):
-            for s in (serial, shared):
-                if k == 3:
-                    e.apply_impulse(model, s, 0, push, worlds=[1, 3])
-                if k == 6:
-                    s.assign([2], model.initial_state(1))  # a reset
-            e.step(model, serial, c)
-            stepper.step(c)
-        assert shared.equal(serial)
-
-
 def breakable_pair():
     """Two free spheres joined by a ball joint that breaks beyond 50 N, no gravity."""
     b = e.SceneBuilder(gravity=None)
@@ -92,123 +45,198 @@ def breakable_pair():
     return b.build()
 
 
-def test_events_carry_the_states_world_indices():
-    model = breakable_pair()
-    state = model.initial_state(4)
-    state.velocity[3, 0] = (-2.0, 0.0, 0.0)  # only world 3 pulls its joint apart
-    state.velocity[3, 1] = (1.0, 0.5, 0.0)
+def random_controls(model, worlds, steps, seed=0):
+    rng = np.random.default_rng(seed)
+    max_torque = np.array([a.max_torque for a in model.actuators])
+    return [e.Control(motor=rng.uniform(-1, 1, (worlds, model.num_actuators)) * max_torque) for _ in range(steps)]
+
+
+@pytest.fixture(scope="module")
+def lying():
+    """(model, W ragdolls fallen onto the ground under 1.5 s of random torques)."""
+    model = ragdoll_on_ground()
+    state = model.initial_state(W)
+    for c in random_controls(model, W, 90, seed=1):
+        e.step(model, state, c)
+    standing = model.initial_state(1).position[0, 1:, 2].max()
+    assert standing > 1.4 and (state.position[:, 1:, 2].max(axis=1) < 0.8).all()  # fallen: no body above 0.8 m
+    return model, state
+
+
+def _run(model, state, controls, threads):
+    s = state.copy()
     events = []
-    with e.ParallelStepper(model, state, processes=2) as stepper:
-        for _ in range(30):
-            events += stepper.step().events
-    assert [(ev.kind, ev.name, ev.world) for ev in events] == [("joint_broken", "j", 3)]
-    assert state.joint_broken[:, 0].tolist() == [False, False, False, True]
+    for c, n in zip(controls, threads):
+        set_threads(n)
+        e.step(model, s, c)
+        events += [(ev.kind, ev.name, ev.world) for ev in s.events]
+    return s, events
 
 
-def test_a_bad_control_raises_before_any_world_moves():
-    model = ragdoll_on_ground()
-    state = model.initial_state(4)
-    with e.ParallelStepper(model, state, processes=2) as stepper:
-        before = state.copy()
-        motor = np.zeros((4, model.num_actuators))
-        motor[2, 5] = np.nan
-        with pytest.raises(ValueError, match=re.escape("control.motor has a NaN or infinite entry at index (2, 5)")):
-            stepper.step(e.Control(motor=motor))
-        with pytest.raises(ValueError, match="control.motor must have shape"):
-            stepper.step(e.Control(motor=np.zeros((3, model.num_actuators))))
-        assert state.equal(before)
-        stepper.step()  # the workers are still there
-        assert not state.equal(before)
+@TWO_THREADS
+def test_lying_ragdolls_on_one_and_two_threads_are_bit_identical(lying, restore_threads):
+    """W = 16 lying ragdolls (many contacts, limits, the joint tree) under
+    random torques: 1 thread, 2 threads and a count changed between steps
+    give the same state bit for bit."""
+    model, start = lying
+    controls = random_controls(model, W, 12, seed=2)
+    one, ev1 = _run(model, start, controls, [1] * 12)
+    two, ev2 = _run(model, start, controls, [2] * 12)
+    mixed, ev3 = _run(model, start, controls, [1, 2] * 6)
+    assert one.equal(two) and one.equal(mixed)
+    assert ev1 == ev2 == ev3
+    assert not one.equal(start)  # it moved
 
 
-def test_a_non_finite_world_is_named_by_its_index_in_the_state():
-    model = ragdoll_on_ground()
-    state = model.initial_state(4)
-    with e.ParallelStepper(model, state, processes=2) as stepper:
-        state.velocity[3, 2, 0] = np.inf  # world 3 lives in the second worker
-        with pytest.raises(e.SimulationError, match=r"world 3 turned non-finite at step 1") as info:
-            stepper.step()
-        assert info.value.worlds == (3,)
-
-
-def test_bad_arguments_and_a_closed_stepper():
-    model = ragdoll_on_ground()
-    state = model.initial_state(2)
-    for bad in (0, -1, 1.5, True, "2"):
-        with pytest.raises(ValueError, match="processes must be an integer >= 1"):
-            e.ParallelStepper(model, state, processes=bad)
-    other = e.SceneBuilder()
-    other.add_body("x", e.Sphere(0.1), mass=1.0)
-    with pytest.raises(ValueError, match="state has .* bodies per world but the model has 1"):
-        e.ParallelStepper(other.build(), state)
-    stepper = e.ParallelStepper(model, state, processes=8)  # no more workers than worlds
-    assert stepper.processes == 2
-    stepper.close()
-    with pytest.raises(RuntimeError, match="closed"):
-        stepper.step()
-    e.step(model, state)  # the state is an ordinary state again
-
-
-def test_arrays_taken_before_close_stay_readable():
-    model = ragdoll_on_ground()
-    state = model.initial_state(2)
-    stepper = e.ParallelStepper(model, state, processes=2)
-    position = state.position  # a reference into the shared memory
-    stepper.step()
-    stepper.close()
-    assert np.array_equal(position, state.position) and np.isfinite(position).all()
-    position[0, 0, 0] = 1.0  # still writable, still the state's array
-    assert state.position[0, 0, 0] == 1.0
-
-
-def test_a_dead_worker_closes_the_stepper_with_a_clear_error():
-    model = ragdoll_on_ground()
-    state = model.initial_state(4)
-    stepper = e.ParallelStepper(model, state, processes=2)
-    stepper.step()
-    stepper._procs[1].kill()
-    stepper._procs[1].join()
-    before = state.copy()
-    with pytest.raises(RuntimeError, match=r"worker 1 \(worlds 2-3\) died"):
-        stepper.step()
-    assert state.equal(before)  # no worker stepped
-    with pytest.raises(RuntimeError, match="closed"):
-        stepper.step()
-
-
-def test_workers_leave_ctrl_c_to_the_parent():
-    # Ctrl-C signals the whole process group: a worker that died of it would
-    # print its own traceback and fail the step the parent is saving after.
-    import os
-    import signal
-    import time
-
-    model = ragdoll_on_ground()
-    serial, shared = model.initial_state(4), model.initial_state(4)
-    # As in a terminal (a background job may start with SIGINT ignored, which forks inherit).
-    before = signal.signal(signal.SIGINT, signal.default_int_handler)
-    try:
-        stepper = e.ParallelStepper(model, shared, processes=2)
-    finally:
-        signal.signal(signal.SIGINT, before)
-    with stepper:
-        stepper.step()
-        for p in stepper._procs:
-            os.kill(p.pid, signal.SIGINT)
-        time.sleep(0.2)
-        assert all(p.is_alive() for p in stepper._procs)
-        stepper.step()
-    e.step(model, serial)
-    e.step(model, serial)
-    assert shared.equal(serial)
-
-
-def test_events_of_a_worker_with_a_non_finite_world_are_kept():
+@TWO_THREADS
+@pytest.mark.parametrize("threads", [1, 2])
+def test_events_of_a_batched_step_carry_the_states_world_indices(threads, restore_threads):
+    set_threads(threads)
     model = breakable_pair()
-    state = model.initial_state(4)
-    state.velocity[0, 0] = (-20.0, 0.0, 0.0)  # world 0 breaks its joint in the first step
-    state.velocity[1, 1, 0] = np.nan  # and world 1, in the same worker, turns non-finite
-    with e.ParallelStepper(model, state, processes=2) as stepper:
-        with pytest.raises(e.SimulationError, match="world 1"):
-            stepper.step()
-        assert [(ev.kind, ev.world) for ev in state.events] == [("joint_broken", 0)]
+    state = model.initial_state(W)
+    for w in (3, W - 4):  # only these worlds pull their joint apart
+        state.velocity[w, 0] = (-2.0, 0.0, 0.0)
+        state.velocity[w, 1] = (1.0, 0.5, 0.0)
+    events = []
+    for _ in range(30):
+        e.step(model, state)
+        events += [(ev.kind, ev.name, ev.world) for ev in state.events]
+    assert events == [("joint_broken", "j", 3), ("joint_broken", "j", W - 4)]
+    assert np.flatnonzero(state.joint_broken[:, 0]).tolist() == [3, W - 4]
+
+
+@TWO_THREADS
+@pytest.mark.parametrize("threads", [1, 2])
+def test_a_non_finite_world_of_a_batched_step_is_named_by_its_index(threads, restore_threads):
+    set_threads(threads)
+    model = ragdoll_on_ground()
+    state = model.initial_state(W)
+    state.velocity[W - 5, 2, 0] = np.inf
+    with pytest.raises(e.SimulationError, match=rf"world {W - 5} turned non-finite at step 1") as info:
+        e.step(model, state)
+    assert info.value.worlds == (W - 5,)
+
+
+def test_a_batched_step_in_another_python_thread_gives_the_same_bits(lying):
+    """The envs and the training step from whichever Python thread calls them:
+    a batched step from a second thread (numba's thread count there is its
+    own, all cores) equals the main thread's."""
+    model, start = lying
+    controls = random_controls(model, W, 4, seed=3)
+    here, _ = _run(model, start, controls, [get_threads()] * 4)
+    out = {}
+
+    def work():
+        out["threads"] = get_threads()
+        s = start.copy()
+        for c in controls:
+            e.step(model, s, c)
+        out["state"] = s
+
+    t = threading.Thread(target=work)
+    t.start()
+    t.join()
+    assert out["threads"] == numba.config.NUMBA_NUM_THREADS
+    assert out["state"].equal(here)
+
+
+def test_the_thread_count_is_per_calling_thread(restore_threads):
+    set_threads(1)
+    seen = []
+    t = threading.Thread(target=lambda: seen.append(get_threads()))
+    t.start()
+    t.join()
+    assert get_threads() == 1 and seen == [numba.config.NUMBA_NUM_THREADS]
+
+
+@pytest.mark.parametrize("bad", [0, -1, 1.5, 2.0, True, "2", numba.config.NUMBA_NUM_THREADS + 1])
+def test_set_threads_rejects_a_bad_count_naming_threads_and_the_range(bad, restore_threads):
+    before = get_threads()
+    with pytest.raises(ValueError, match=rf"threads must be an integer in 1\.\.{numba.config.NUMBA_NUM_THREADS} "
+                                         rf"\(NUMBA_NUM_THREADS\), got "):
+        set_threads(bad)
+    assert get_threads() == before  # unchanged
+
+
+def test_set_threads_takes_numpy_integers(restore_threads):
+    assert set_threads(np.int64(1)) == 1 == get_threads()
+    assert isinstance(set_threads(np.int32(1)), int)
+
+
+PROBE = """
+import json, sys, warnings
+import numpy as np
+if sys.argv[1] == "no-omp":
+    sys.modules["numba.np.ufunc.omppool"] = None  # as on a machine without libgomp: the import fails
+import numba
+import engine
+from engine.humanoid import add_humanoid
+b = engine.SceneBuilder()
+b.add_ground()
+with warnings.catch_warnings():
+    warnings.simplefilter("ignore")
+    add_humanoid(b)
+model = b.build()
+state = model.initial_state(int(sys.argv[2]))
+engine.step(model, state)
+print(json.dumps({"layer": numba.threading_layer(), "position": state.position.tolist()}))
+"""
+
+
+def _probe(mode, env=None):
+    env = {k: v for k, v in os.environ.items() if not k.startswith("NUMBA_THREADING_LAYER")} | (env or {})
+    out = subprocess.run([sys.executable, "-c", PROBE, mode, str(W)], cwd=REPO, env=env, capture_output=True,
+                         text=True, timeout=600)
+    assert out.returncode == 0, out.stderr
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def _omp_loads() -> bool:
+    try:
+        import numba.np.ufunc.omppool  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def test_the_threading_layer_is_omp_and_falls_back_without_it():
+    """engine.core.jit prefers GNU OpenMP (cheap launches); without libgomp
+    numba takes the next layer (TBB where it loads, else workqueue) rather
+    than failing, and an explicit NUMBA_THREADING_LAYER is kept. Every
+    layer gives the same bits."""
+    default = _probe("default")
+    assert default["layer"] == ("omp" if _omp_loads() else default["layer"])
+    assert default["layer"] in ("omp", "tbb", "workqueue")
+    fallback = _probe("no-omp")
+    assert fallback["layer"] in ("tbb", "workqueue")
+    chosen = _probe("default", {"NUMBA_THREADING_LAYER": "workqueue"})
+    assert chosen["layer"] == "workqueue"
+    assert default["position"] == fallback["position"] == chosen["position"]
+
+
+def _spawned_step(queue, seed):
+    model = ragdoll_on_ground()
+    state = model.initial_state(W)
+    for c in random_controls(model, W, 3, seed=seed):
+        e.step(model, state, c)
+    queue.put(state.position)
+
+
+def test_spawned_children_step_batches_after_the_parent_did():
+    """The fork caveat (engine.core.jit): after a batched step, children that
+    step batches are started with "spawn" (or "forkserver"), which runs them
+    in a fresh interpreter; their steps are the parent's, bit for bit."""
+    model = ragdoll_on_ground()
+    state = model.initial_state(W)
+    for c in random_controls(model, W, 3, seed=4):
+        e.step(model, state, c)  # the parallel loops, in the parent
+    ctx = mp.get_context("spawn")
+    queue = ctx.Queue()
+    p = ctx.Process(target=_spawned_step, args=(queue, 4))
+    p.start()
+    try:
+        position = queue.get(timeout=600)
+    finally:
+        p.join(timeout=60)
+    assert p.exitcode == 0
+    assert np.array_equal(position, state.position)

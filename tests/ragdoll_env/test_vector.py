@@ -1,6 +1,10 @@
 """The native VectorEnv and the SB3 VecEnv: same numbers as W single envs, autoreset, contracts."""
 
+import re
+import warnings
+
 import gymnasium as gym
+import numba
 import numpy as np
 import pytest
 from gymnasium.vector import AutoresetMode
@@ -205,27 +209,96 @@ def test_sb3_adapter_renders_rgb_frames():
     assert venv.render().dtype == np.uint8
 
 
-def test_vector_env_in_worker_processes_equals_one_process():
+@pytest.fixture
+def restore_threads():
+    """The engine's thread count (of this thread) as it was before the test."""
+    import engine
+
+    before = engine.get_threads()
+    yield
+    engine.set_threads(before)
+
+
+@pytest.mark.skipif(numba.config.NUMBA_NUM_THREADS < 2, reason="needs 2 threads")
+def test_vector_env_on_one_and_two_threads_equals_the_default(restore_threads):
     # Balance with pushes every 0.05-0.1 s and episodes of 20 steps (autoreset),
-    # 3 worlds over 2 processes: the same observations, rewards and infos bit for bit.
-    kwargs = dict(max_episode_steps=20, push_strength=(5.0, 20.0), push_interval=(0.05, 0.1))
-    one = make_vec("Ragdoll/Balance-v0", **kwargs)
-    two = make_vec("Ragdoll/Balance-v0", processes=2, **kwargs)
-    assert two.unwrapped.core.processes == 2 and two.unwrapped.core._stepper.processes == 2
-    outs = [envs.reset(seed=5) for envs in (one, two)]
-    np.testing.assert_array_equal(outs[0][0], outs[1][0])
-    actions = random_actions(2, 30, one.action_space.shape)
+    # 16 worlds (enough for the kernels' prange loops, SERIAL_BELOW) on 1 and
+    # on 2 threads: the same observations, rewards and infos bit for bit as
+    # the default (the engine's count).
+    from engine.core.jit import SERIAL_BELOW
+
+    n = 2 * SERIAL_BELOW
+    kwargs = dict(num_envs=n, max_episode_steps=20, push_strength=(5.0, 20.0), push_interval=(0.05, 0.1))
+    default = make_vec("Ragdoll/Balance-v0", **kwargs)
+    one, two = (make_vec("Ragdoll/Balance-v0", threads=t, **kwargs) for t in (1, 2))
+    assert default.unwrapped.core.threads is None
+    assert one.unwrapped.core.threads == 1 and two.unwrapped.core.threads == 2
+    envs = (default, one, two)
+    outs = [v.reset(seed=5) for v in envs]
+    for o in outs[1:]:
+        np.testing.assert_array_equal(outs[0][0], o[0])
     pushes = 0
-    for a in actions:
-        (o1, r1, t1, u1, i1), (o2, r2, t2, u2, i2) = one.step(a), two.step(a)
-        for x, y in ((o1, o2), (r1, r2), (t1, t2), (u1, u2), (i1["push_impulse"], i2["push_impulse"])):
-            np.testing.assert_array_equal(x, y)
-        pushes += int(i1["push_applied"].sum())
-    assert pushes > 0 and one.unwrapped.state.equal(two.unwrapped.state)
-    two.close()
-    assert two.unwrapped.core._stepper is None
-    with pytest.raises(ValueError, match="processes must be >= 1"):
+    for a in random_actions(2, 30, default.action_space.shape):
+        steps = []
+        for v in envs:
+            steps.append(v.step(a))
+            # the count is set for this thread at each step and left set
+            assert numba.get_num_threads() == (v.unwrapped.core.threads or numba.get_num_threads())
+        (o0, r0, t0, u0, i0) = steps[0]
+        for (o, r, t, u, i) in steps[1:]:
+            for x, y in ((o0, o), (r0, r), (t0, t), (u0, u), (i0["push_impulse"], i["push_impulse"])):
+                np.testing.assert_array_equal(x, y)
+        pushes += int(i0["push_applied"].sum())
+    assert pushes > 0
+    assert default.unwrapped.state.equal(one.unwrapped.state) and one.unwrapped.state.equal(two.unwrapped.state)
+    for v in envs:
+        v.close()  # nothing to stop; the state keeps its values
+    assert one.unwrapped.state.equal(two.unwrapped.state)
+
+
+@pytest.mark.parametrize("bad, message", [
+    (0, "threads must be >= 1, got 0"),
+    (1.5, "threads must be an integer, got 1.5"),
+    (True, "threads must be an integer, got True"),
+    ("2", "threads must be an integer"),
+    (numba.config.NUMBA_NUM_THREADS + 1, f"threads must be <= {numba.config.NUMBA_NUM_THREADS} (NUMBA_NUM_THREADS"),
+])
+def test_bad_threads_are_value_errors_naming_threads(bad, message):
+    with pytest.raises(ValueError, match=re.escape(message)):
+        make_vec("Ragdoll/Balance-v0", threads=bad)
+    with pytest.raises(ValueError, match=re.escape(message)):
+        make("Ragdoll/InvertedPendulum-v0", threads=bad)
+
+
+def test_processes_is_a_deprecated_alias_of_threads(restore_threads):
+    """processes=P (the former worker processes) warns and steps on
+    min(P, NUMBA_NUM_THREADS) threads; processes=0 and processes with
+    threads are errors naming them."""
+    cores = numba.config.NUMBA_NUM_THREADS
+    for p in (1, 2, 64):
+        with pytest.warns(DeprecationWarning, match=re.escape("processes= is deprecated: the worlds step on threads; "
+                                                              "use threads=")):
+            envs = make_vec("Ragdoll/Balance-v0", processes=p)
+        assert envs.unwrapped.core.threads == min(p, cores)
+        envs.close()
+    from ragdoll_env.sb3 import make_sb3_vec_env
+
+    with pytest.warns(DeprecationWarning, match="processes= is deprecated"):
+        venv = make_sb3_vec_env("Ragdoll/InvertedPendulum-v0", num_envs=2, seed=0, processes=2)
+    assert venv.core.threads == min(2, cores)
+    venv.close()
+    with pytest.warns(DeprecationWarning), pytest.raises(ValueError, match="processes must be >= 1"):
         make_vec("Ragdoll/Balance-v0", processes=0)
+    with pytest.warns(DeprecationWarning), pytest.raises(ValueError, match="give threads= only, not also"):
+        make_vec("Ragdoll/Balance-v0", processes=2, threads=1)
+
+
+def test_the_deprecation_warning_names_the_callers_line():
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        make_vec("Ragdoll/InvertedPendulum-v0", processes=1).close()
+    [w] = [w for w in caught if issubclass(w.category, DeprecationWarning) and "processes=" in str(w.message)]
+    assert w.filename == __file__
 
 
 @pytest.mark.parametrize("steps, expected", [(None, np.inf), (50, 50)])

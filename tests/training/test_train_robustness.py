@@ -56,7 +56,11 @@ def _tiny(tmp_path, cfg, **changes) -> str:
     ({"eval": {"freq": 64, "episodes": 1, "num_envs": 1, "env_kwargs": {"bogus": 1}}},
      "unknown keyword argument 'bogus'"),
     ({"eval": {"env_kwargs": [1]}}, "'eval.env_kwargs' must be a mapping or null"),
+    ({"eval": {"env_kwargs": {"threads": 2}}}, "threads goes at the top level of the config, not in 'eval.env_kwargs'"),
     ({"eval": {"env_kwargs": {"processes": 2}}}, "processes goes at the top level of the config, not in 'eval.env_kwargs'"),
+    ({"threads": 0}, "threads (physics threads per env) must be a whole number >= 1, got 0"),
+    ({"threads": "2"}, "threads (physics threads per env) must be a whole number >= 1, got '2'"),
+    ({"processes": True}, "processes (deprecated: threads) must be a whole number >= 1, got True"),
 ])
 def test_failed_start_writes_nothing(tmp_path, bad, message):
     run = tmp_path / "run"
@@ -184,6 +188,39 @@ def test_non_positive_counts_are_argparse_errors(parser, argv, capsys):
         parser().parse_args(argv)
     assert exc.value.code == 2
     assert f"argument {argv[-2]}: must be an integer >= " in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("parser, argv", [
+    (train.build_parser, [ENV, "--sim-threads", "0"]),
+    (train.build_parser, [ENV, "--sim-threads", "many"]),
+    (evaluate.build_parser, ["RUN", "--sim-threads", str(common.cores() + 1)]),
+    (push_sweep.build_parser, ["RUN", "--sim-threads", "-1"]),
+    (push_trials.build_parser, ["RUN", "--sim-threads", "0"]),
+])
+def test_bad_sim_threads_are_argparse_errors(parser, argv, capsys):
+    with pytest.raises(SystemExit) as exc:
+        parser().parse_args(argv)
+    assert exc.value.code == 2
+    assert (f"argument --sim-threads: must be an integer in 1..{common.cores()} (NUMBA_NUM_THREADS), got "
+            f"{argv[-1]!r}") in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("parser, argv", [
+    (train.build_parser, [ENV]), (evaluate.build_parser, ["RUN"]), (push_sweep.build_parser, ["RUN"]),
+    (push_trials.build_parser, ["RUN"]),
+])
+def test_processes_is_a_deprecated_alias_of_sim_threads(parser, argv, capsys):
+    """--processes N (the former worker processes) is --sim-threads min(N,
+    cores), with a note; 0 stays a usage error naming it; --threads stays
+    torch's CPU threads."""
+    args = parser().parse_args(argv + ["--processes", "1"])
+    assert args.sim_threads == 1 and "--processes is deprecated" in capsys.readouterr().err
+    args = parser().parse_args(argv + ["--processes", "1000", "--threads", "3"])
+    assert args.sim_threads == common.cores() and args.threads == 3
+    assert parser().parse_args(argv).sim_threads is None
+    with pytest.raises(SystemExit):
+        parser().parse_args(argv + ["--processes", "0"])
+    assert "argument --processes: must be an integer >= 1" in capsys.readouterr().err
 
 
 def test_zero_eval_and_checkpoint_freq_turn_them_off(tmp_path, tiny):

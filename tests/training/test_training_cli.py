@@ -3,6 +3,7 @@ import math
 import shutil
 from pathlib import Path
 
+import numba
 import numpy as np
 import pytest
 
@@ -211,7 +212,7 @@ def tiny_balance_run(tmp_path_factory):
 
     step_s = BalanceTask.dt * BalanceTask.frame_skip
     cfg = {"env_kwargs": {"max_episode_steps": int(round(3.0 / step_s)), "push_interval": [0.5, 0.5]},
-           "train_env_kwargs": None, "processes": 1,
+           "train_env_kwargs": None, "threads": 1,
            "ppo": {"n_steps": 32, "batch_size": 64, "n_epochs": 1},
            "eval": {"freq": 10_000, "episodes": 1, "num_envs": 1}, "checkpoint_freq": 10_000}
     tmp = tmp_path_factory.mktemp("balance")
@@ -223,64 +224,97 @@ def tiny_balance_run(tmp_path_factory):
     return run
 
 
-def test_worker_processes_train_the_same_run_bit_for_bit(tmp_path, monkeypatch):
-    """--processes 2 steps the worlds of the training and the evaluation env in
-    two worker processes (engine.ParallelStepper): the same model,
-    normalisation and evaluations as one process, bit for bit."""
+@pytest.mark.skipif(numba.config.NUMBA_NUM_THREADS < 2, reason="needs 2 threads")
+def test_physics_threads_train_the_same_run_bit_for_bit(tmp_path, monkeypatch, capsys):
+    """--sim-threads 1 and 2 step the worlds of the training env (8, enough
+    for the kernels' prange loops) and of the evaluation env on that many
+    threads: the same model, normalisation and evaluations bit for bit. The
+    count is the config's "threads", recorded in config.json; the evaluation
+    tools step on the run's count unless told otherwise; --processes is a
+    deprecated alias; a run recorded with "processes" still loads."""
     import pickle
 
     import torch
     from stable_baselines3 import PPO
 
-    import engine
+    import ragdoll_env.batched as batched
     from ragdoll_env.tasks import BalanceTask
 
-    made = []  # worker processes of each ParallelStepper made
+    made = []  # the threads of each env built (None: the engine's count)
+    count = batched.thread_count
 
-    class Counted(engine.ParallelStepper):
-        def __init__(self, model, state, processes=2):
-            super().__init__(model, state, processes)
-            made.append(self.processes)
+    def counted(threads, processes=None):
+        made.append(count(threads, processes))
+        return made[-1]
 
-    monkeypatch.setattr(engine, "ParallelStepper", Counted)
+    monkeypatch.setattr(batched, "thread_count", counted)
 
     step_s = BalanceTask.dt * BalanceTask.frame_skip
     cfg = {"env_kwargs": {"max_episode_steps": round(1.0 / step_s), "push_interval": [0.5, 0.5]},
-           "ppo": {"n_steps": 32, "batch_size": 64, "n_epochs": 1},
-           "eval": {"freq": 64, "episodes": 2, "num_envs": 2}, "checkpoint_freq": 10_000}
+           "ppo": {"n_steps": 16, "batch_size": 64, "n_epochs": 1},
+           "eval": {"freq": 128, "episodes": 2, "num_envs": 2}, "checkpoint_freq": 10_000}
     path = tmp_path / "bal.json"
     path.write_text(json.dumps(cfg))
-    for p in (1, 2):
-        train.main(["Ragdoll/Balance-v0", "--timesteps", "128", "--num-envs", "3", "--seed", "0",
-                    "--out", str(tmp_path / f"p{p}"), "--config", str(path), "--processes", str(p),
-                    "--no-progress-bar"])
-        # the training env (3 worlds) and the evaluation env (2) in 2 processes each, or none
-        assert made == ([2, 2] if p == 2 else [])
+    runs = {t: tmp_path / f"t{t}" for t in (1, 2)}
+    for t, run in runs.items():
+        train.main(["Ragdoll/Balance-v0", "--timesteps", "256", "--num-envs", "8", "--seed", "0",
+                    "--out", str(run), "--config", str(path), "--no-progress-bar", "--sim-threads", str(t)])
+        assert made == [t, t]  # the training env (8 worlds) and the evaluation env (2)
         made.clear()
-    one, two = tmp_path / "p1", tmp_path / "p2"
-    assert json.loads((two / "config.json").read_text())["config"]["processes"] == 2
-    assert json.loads((one / "config.json").read_text())["config"]["processes"] == 1
+        assert json.loads((run / "config.json").read_text())["config"]["threads"] == t
+    # no --sim-threads: the config's (none: the engine's count); --processes N: --sim-threads min(N, cores)
+    parser = train.build_parser()
+    assert parser.parse_args(["Ragdoll/Balance-v0"]).sim_threads is None
+    capsys.readouterr()
+    assert parser.parse_args(["Ragdoll/Balance-v0", "--processes", "64"]).sim_threads == numba.config.NUMBA_NUM_THREADS
+    assert "--processes is deprecated: the worlds step on threads; use --sim-threads" in capsys.readouterr().err
+    one, two = runs[1], runs[2]
     a, b = (PPO.load(str(r / "final_model.zip"), device="cpu").policy for r in (one, two))
     assert all(torch.equal(x, y) for x, y in zip(a.parameters(), b.parameters()))
     n1, n2 = (pickle.loads((r / "vecnormalize.pkl").read_bytes()).obs_rms for r in (one, two))
     assert np.array_equal(n1.mean, n2.mean) and np.array_equal(n1.var, n2.var)
     with np.load(one / "eval" / "evaluations.npz") as e1, np.load(two / "eval" / "evaluations.npz") as e2:
-        # 2 rollouts of 3 worlds x 32 steps, an evaluation every 64 // 3 = 21 steps of the 3 worlds
-        assert e1["results"].shape == (3, 2)
+        # 2 rollouts of 8 worlds x 16 steps, an evaluation every 128 // 8 = 16 steps of the 8 worlds
+        assert e1["results"].shape == (2, 2)
         assert np.array_equal(e1["results"], e2["results"]) and np.array_equal(e1["ep_lengths"], e2["ep_lengths"])
-    # training.evaluate steps in the run's processes unless told otherwise, with the same figures
+    # training.evaluate steps on the run's threads unless told otherwise, with the same figures
     figures = {}
-    for flags, want in (([], [2, 2, 2]), (["--processes", "1"], [])):  # the agent's env, then two baselines'
+    for flags, want in (([], [2, 2, 2]), (["--sim-threads", "1"], [1, 1, 1])):  # the agent's env, two baselines'
         out = tmp_path / f"eval{len(flags)}.json"
         evaluate.main([str(two), "--episodes", "2", "--json", str(out)] + flags)
         assert made == want
         made.clear()
         figures[len(flags)] = {k: v for k, v in json.loads(out.read_text()).items() if "time" not in k}
     assert figures[0] == figures[2]
-    for bad, message in (({"processes": 0}, "processes .*must be a whole number >= 1"),
+    # a run recorded before the threads: its "processes" is read as threads (at most the cores here)
+    saved = json.loads((two / "config.json").read_text())
+    del saved["config"]["threads"]
+    saved["config"]["processes"] = 64
+    (two / "config.json").write_text(json.dumps(saved))
+    out = tmp_path / "eval_old.json"
+    evaluate.main([str(two), "--episodes", "2", "--json", str(out)])
+    assert made == [numba.config.NUMBA_NUM_THREADS] * 3
+    made.clear()
+    assert {k: v for k, v in json.loads(out.read_text()).items() if "time" not in k} == figures[0]
+    saved["config"].pop("processes")
+    saved["config"]["threads"] = None  # as the shipped configs record it: the engine's count
+    (two / "config.json").write_text(json.dumps(saved))
+    evaluate.main([str(two), "--episodes", "2", "--no-baselines", "--processes", "1"])
+    assert made == [1]
+    made.clear()
+    evaluate.main([str(two), "--episodes", "2", "--no-baselines"])
+    assert made == [None]
+    made.clear()
+    cores = numba.config.NUMBA_NUM_THREADS
+    for bad, message in (({"threads": 0}, "threads .*must be a whole number >= 1"),
+                         ({"threads": 1.5}, "threads .*must be a whole number >= 1"),
+                         ({"threads": cores + 1}, f"threads .*must be at most {cores}"),
+                         ({"processes": 0}, "processes .*must be a whole number >= 1"),
                          ({"processes": 1.5}, "processes .*must be a whole number >= 1"),
+                         ({"processes": 2, "threads": 1}, "give threads only, not also processes"),
+                         ({"env_kwargs": {"threads": 2}}, "threads goes at the top level"),
                          ({"env_kwargs": {"processes": 2}}, "processes goes at the top level"),
-                         ({"train_env_kwargs": {"processes": 2}}, "processes goes at the top level")):
+                         ({"train_env_kwargs": {"threads": 2}}, "threads goes at the top level")):
         path.write_text(json.dumps({**cfg, **bad}))
         with pytest.raises(SystemExit, match=message):
             train.main(["Ragdoll/Balance-v0", "--timesteps", "64", "--out", str(tmp_path / "x"), "--config",
@@ -291,7 +325,7 @@ def test_worker_processes_train_the_same_run_bit_for_bit(tmp_path, monkeypatch):
 def test_the_doc_configs_restore_the_runs_they_name():
     """docs/balance_pd_level.json over the default is the Balance entry before
     2026-12-06; docs/balance_push_trials.json the 32-world push-trial run's."""
-    from training.configs import check_override
+    from training.configs import check_override, upgrade
 
     docs = Path(__file__).resolve().parents[2] / "docs"
     default = get_config("Ragdoll/Balance-v0")
@@ -302,8 +336,8 @@ def test_the_doc_configs_restore_the_runs_they_name():
     for name, want in runs.items():
         override = json.loads((docs / name).read_text())
         check_override(override)
-        cfg = merge(default, override)
-        assert cfg["num_envs"] == want["num_envs"] and cfg["processes"] == 1
+        cfg = merge(default, upgrade(override))  # their "processes": 1, as recorded then, is one thread
+        assert cfg["num_envs"] == want["num_envs"] and cfg["threads"] == 1 and "processes" not in cfg
         assert cfg["ppo"]["n_steps"] == want["n_steps"] and cfg["ppo"]["learning_rate"] == want["lr"]
         assert cfg["ppo"]["policy_kwargs"]["critic_lr_factor"] == want["critic"]
         assert cfg["residual"]["scale"] == want["scale"] and cfg["train_env_kwargs"] == want["train"]
@@ -336,8 +370,8 @@ def test_push_sweep_rows_for_agent_and_baselines(tiny_balance_run, tmp_path):
 
 
 def test_push_trials_survive_weak_pushes_and_fall_backwards(tiny_balance_run, tmp_path):
-    """One push per world at the chest, towards the front and the back (in one
-    process and in two), for 3.5 s (beyond the run's 3 s episodes, which the
+    """One push per world at the chest, towards the front and the back (on
+    one thread and on all cores), for 3.5 s (beyond the run's 3 s episodes, which the
     trials do not truncate):
     at 5 N·s (the capture point moves 2 cm) nothing falls; at 25 N·s the PD
     takes the forward push on its toes and tips over its heels from the
@@ -364,9 +398,10 @@ def test_push_trials_survive_weak_pushes_and_fall_backwards(tiny_balance_run, tm
         "baseline": "standing_pd", "trials": 4, "agent_falls": sum(x == "X" for x, _ in pairs),
         "baseline_falls": sum(y == "X" for _, y in pairs), "saved": saved, "lost": lost,
         "sign_test_p": push_trials.sign_test_p(saved, lost)}]
-    # the same trials with each env's 2 worlds in 2 worker processes (pushes written to the shared state)
+    # the same trials with each env's 2 worlds on all cores (the run's config says 1 thread)
     two = push_trials.main([str(tiny_balance_run), "--strengths", "5", "25", "--directions", "2", "--bodies",
-                            "chest", "--settle", "0.5", "--watch", "3", "--processes", "2"])
+                            "chest", "--settle", "0.5", "--watch", "3", "--sim-threads",
+                            str(numba.config.NUMBA_NUM_THREADS)])
     assert two["rows"] == res["rows"]
     with pytest.raises(SystemExit, match="no body named 'nose'"):
         push_trials.main([str(tiny_balance_run), "--strengths", "5", "--directions", "1", "--bodies", "nose"])
