@@ -103,7 +103,7 @@ CONFIGS = {
     },
     "Ragdoll/Balance-v0": {
         "num_envs": 128,
-        "threads": None,         # physics threads: all cores (formerly "processes": 2, two worker processes)
+        "threads": None,         # physics threads: all cores
         "timesteps": 5_000_000,
         "ppo": {
             "policy": "MlpPolicy",

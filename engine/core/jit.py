@@ -24,25 +24,20 @@ import os
 
 import numba
 
-# The threading layer: GNU OpenMP ("omp") first. A step makes about 60
-# parallel-kernel calls, and a launch costs about 10 us on omp against about
-# 150 us on numba's own workqueue (TBB: pip's tbb puts libtbb outside the
-# loader path, so numba cannot load it here): at W = 64 the lying ragdoll's
-# step fell from 43 to 24.5 ms. numba tries the layers in this order and takes
-# the first that loads, so a machine without libgomp falls back to TBB, then
-# to workqueue, instead of failing. Set before any parallel kernel runs, which
-# is when numba loads the layer; an explicit NUMBA_THREADING_LAYER or
-# NUMBA_THREADING_LAYER_PRIORITY is kept. OpenMP's idle workers spin: while
-# another process holds a core, a 2-thread batched step can be much slower
-# than a 1-thread one (here at W = 16: 570 against 12 ms a step); take
+# The threading layer: GNU OpenMP ("omp") first, for its cheap launch (a
+# step makes many parallel-kernel calls; the figures are in docs/decisions.md).
+# numba tries the layers in this order and takes the first that loads, so a
+# machine without libgomp falls back to TBB, then to workqueue, instead of
+# failing. Set before any parallel kernel runs, which is when numba loads the
+# layer; an explicit NUMBA_THREADING_LAYER or NUMBA_THREADING_LAYER_PRIORITY is
+# kept. OpenMP's idle workers spin: while another process holds a core, a
+# 2-thread batched step can be much slower than a 1-thread one; take
 # set_threads(1) on a machine that busy.
 #
 # The fork caveat: GNU OpenMP terminates a fork()ed child that enters a
-# parallel region once its parent has used one ("Terminating: fork() called
-# from a process already using GNU OpenMP, this is unsafe."). After a batched
-# step (W >= SERIAL_BELOW) in a process, children that run batched steps must
-# be started with the "spawn" or "forkserver" multiprocessing start methods,
-# not "fork". The worlds step on threads instead (set_threads).
+# parallel region once its parent has used one. After a batched step
+# (W >= SERIAL_BELOW) in a process, children that run batched steps must be
+# started with the "spawn" or "forkserver" multiprocessing start methods.
 if "NUMBA_THREADING_LAYER" not in os.environ and "NUMBA_THREADING_LAYER_PRIORITY" not in os.environ:
     numba.config.THREADING_LAYER_PRIORITY = ["omp", "tbb", "workqueue"]
     numba.config.THREADING_LAYER = "default"
