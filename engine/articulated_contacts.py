@@ -136,12 +136,15 @@ class ArticulatedContacts:
         """``Settings.articulated_contact_sweeps`` projected Gauss-Seidel sweeps
         over the columns (``contact_solver``'s per-point rules with the
         effective masses 1 / A_ii), then Z Δλ."""
-        soft = cr.soft
-        prm = kernels.SoftParams(h=float(h), bias_rate=float(soft.bias_rate), mass_scale=float(soft.mass_scale),
-                                 impulse_scale=float(soft.impulse_scale), slop=float(cr.slop),
-                                 max_push_out=float(cr.max_push_out), thesis=bool(cr.thesis), sweeps=self.sweeps)
         kernels.solve(self.contact_view, self.arrays, state.position, state.orientation, state.velocity,
-                      state.angular_velocity, prm, bool(use_bias))
+                      state.angular_velocity, self.params(cr, h), bool(use_bias))
+
+    def params(self, cr, h):
+        """The solve's constants (``engine.core.articulated.SoftParams``) for substeps of h s."""
+        soft = cr.soft
+        return kernels.SoftParams(h=float(h), bias_rate=float(soft.bias_rate), mass_scale=float(soft.mass_scale),
+                                  impulse_scale=float(soft.impulse_scale), slop=float(cr.slop),
+                                  max_push_out=float(cr.max_push_out), thesis=bool(cr.thesis), sweeps=self.sweeps)
 
     def bounce(self, state, cr, bounce, target):
         """Restitution of the rows' points marked in ``bounce`` (rows of the

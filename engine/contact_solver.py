@@ -55,6 +55,8 @@ from __future__ import annotations
 import numpy as np
 
 from .core import contacts as kernels
+from .core import world
+from .core.world import contact_row_arrays
 from .soft import make_soft
 
 STICK_SPEED = 0.01  # m/s: below it a contact point uses static friction
@@ -70,22 +72,13 @@ class ContactRows:
         s = contacts.settings
         N = model.num_bodies
         W = state.num_worlds
-        empty3, empty4 = (lambda: np.empty((R, 3))), (lambda: np.empty((R, 4)))
         point_r, lam_t = np.empty((R, 4, 3)), np.empty((R, 4, 3))
         self.p = np.empty(R, dtype=np.int64)
         self.jointed = np.empty(R, dtype=bool)  # rows touching a body held by a joint
         self.gravity_n = np.empty(R)  # m/s², relative normal acceleration from uniform gravity (negative: closing)
         # The gather fills the manifold's and the model's fields, the prepare
         # kernel the step-constant ones.
-        self.arrays = A = kernels.ContactRowArrays(
-            w=np.empty(R, dtype=np.int64), a=np.empty(R, dtype=np.int64), b=np.empty(R, dtype=np.int64),
-            dyn_a=np.empty(R, dtype=bool), dyn_b=np.empty(R, dtype=bool), free=np.empty(R, dtype=bool),
-            inv_ma=np.empty(R), inv_mb=np.empty(R), n=empty3(), t1=empty3(), t2=empty3(),
-            valid=np.empty((R, 4), dtype=bool), xa0=empty3(), xb0=empty3(), ra=np.empty((R, 4, 3)),
-            rb=np.empty((R, 4, 3)), la=np.empty((R, 4, 3)), lb=np.empty((R, 4, 3)), sep0=empty4(),
-            ia=np.empty((R, 3, 3)), ib=np.empty((R, 3, 3)), mn=empty4(), mt1=empty4(), mt2=empty4(), mu=empty4(),
-            e=np.empty(R), lam_n=empty4(), lam_t1=empty4(), lam_t2=empty4(), max_lam_n=empty4(),
-            s_close=empty4(), vn_close=empty4())
+        self.arrays = A = contact_row_arrays(R)
         self.bouncy = kernels.gather(keep, normal, point, sep, valid, state.contact_normal_impulse,
                                      state.contact_friction_impulse, contacts.pair_a, contacts.pair_b, model.dynamic,
                                      model.inv_mass, contacts.held, contacts.restitution, contacts.gravity, A, self.p,
@@ -188,6 +181,21 @@ class ContactRows:
         self.articulated = articulated
         self.color[articulated.rows] = -1
         self.order, self.world_start = kernels.sweep_order(self.w, self.color, self.num_worlds)
+
+    def substep_arrays(self, h):
+        """The rows' arguments of the compiled substeps: (ContactStep,
+        ContactRowArrays, ContactView, ArticulatedArrays, SolverParams,
+        SoftParams) (``engine.core.world``)."""
+        ar = self.articulated
+        if ar is None:
+            view, S, ap = world.no_articulated(self.arrays)
+        else:
+            view, S, ap = ar.contact_view, ar.arrays, ar.params(self, h)
+        steps = (self.lam_n_step, self.lam_t1_step, self.lam_t2_step) if self.bouncy else (np.zeros((0, 4)),) * 3
+        C = world.ContactStep(on=True, order=self.order, world_start=self.world_start, world_rows=self.world_rows,
+                              row_start=self.row_start, bouncy=bool(self.bouncy), lam_n_step=steps[0],
+                              lam_t1_step=steps[1], lam_t2_step=steps[2], articulated=ar is not None)
+        return C, self.arrays, view, S, self._params(h), ap
 
     def restitution(self, model, state):
         """Bounce once per step: sequential impacts from the closing speeds

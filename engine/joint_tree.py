@@ -220,14 +220,7 @@ class _TreeSolver(_Rows):
         geometric = self.geometric_weight is not None
         J = state.joint_linear_impulse.shape[1]
         if geometric:
-            # The loads of the tree joints and of the loop-closing joints solved
-            # with the tree (they carry load too).
-            parts = [(self.joints, self.geometric_weight)]
-            if js.loop_rows is not None and self.loop_geometric_weight is not None:
-                parts.append((js.loop_rows.joints, self.loop_geometric_weight))
-            idx = np.concatenate([p[0] for p in parts]).astype(np.int64)
-            weight = np.concatenate([np.broadcast_to(np.asarray(wt, dtype=float), (W, p.size)) for p, wt in parts],
-                                    axis=1)
+            idx, weight = self.loaded_joints(js, W)
             g = js.geometry(state)
             ra, rb = g.ra, g.rb
             iinv_out = np.empty_like(js._iinv)
@@ -242,6 +235,32 @@ class _TreeSolver(_Rows):
                                 rb, h, js.settings.joint_geometric_stiffness_cap, geometric, iinv_out, self.M,
                                 self.M_inv)
         js._iinv = self.iinv = iinv_out
+
+    def loaded_joints(self, js, W):
+        """The joints whose load stiffens the metric (geometric stiffness):
+        the tree joints, then the loop-closing joints solved with the tree
+        (they carry load too), and their weights (W, loaded)."""
+        parts = [(self.joints, self.geometric_weight)]
+        if js.loop_rows is not None and self.loop_geometric_weight is not None:
+            parts.append((js.loop_rows.joints, self.loop_geometric_weight))
+        idx = np.concatenate([p[0] for p in parts]).astype(np.int64)
+        weight = np.concatenate([np.broadcast_to(np.asarray(wt, dtype=float), (W, p.size)) for p, wt in parts],
+                                axis=1)
+        return idx, np.ascontiguousarray(weight)
+
+    def uses_schur(self) -> bool:
+        """Whether the active set runs on one factorisation (at most
+        ``SCHUR_LIMIT_ROWS`` limit rows) rather than factoring each pass."""
+        return self.limit_candidates[0].size <= SCHUR_LIMIT_ROWS
+
+    def scratch(self, W):
+        """The solve's ``TreeScratch`` for W worlds (kept between steps)."""
+        S = self._scratch
+        if S is None or S.mask.shape[0] != W:
+            S = self._scratch = tree_solve.empty_scratch(W, self.joints.size, self.t.n_nodes,
+                                                         self.limit_candidates[0].size)
+            self._factored = None
+        return S
 
     def jacobians(self, js, state, use_bias, bias_rate, velocity=True, max_push_out=None,
                   max_angular_push_out=None, rows=None):
@@ -314,11 +333,8 @@ class _TreeSolver(_Rows):
         change between them), so the second reuses the first's. Factors of a
         solve before the positions moved are never reused (a relax solve on
         stale factors can add energy)."""
-        W, nj, k = state.num_worlds, self.joints.size, self.limit_candidates[0].size
-        S = self._scratch
-        if S is None or S.mask.shape[0] != W:
-            S = self._scratch = tree_solve.empty_scratch(W, nj, self.t.n_nodes, k)
-            self._factored = None
+        W, nj = state.num_worlds, self.joints.size
+        S = self.scratch(W)
         refactor = self._factored is not state
         s = js.settings
         tree_solve.solve_batch(self.arrays, self.layout, js.geometry(state), state.joint_broken, js._iinv, self.M,
@@ -326,7 +342,7 @@ class _TreeSolver(_Rows):
                                state.joint_linear_impulse, state.joint_angular_impulse, state.joint_limit_impulse,
                                _per_joint(bias_rate, W, nj), _per_joint(mass_scale, W, nj),
                                _per_joint(impulse_scale, W, nj), bool(use_bias), float(h), float(s.joint_max_push_out),
-                               float(s.joint_max_angular_push_out), bool(self.limits), k <= SCHUR_LIMIT_ROWS,
+                               float(s.joint_max_angular_push_out), bool(self.limits), self.uses_schur(),
                                int(self.active_set_passes), refactor, S)
         self._factored = state
 

@@ -52,6 +52,7 @@ from .core.joints import passive as passive_kernel, warm_start as warm_start_ker
 from .core.joint_rows import FIXED_LOCK, HINGE_LOCK, POINT, add_load as add_load_kernel, snap as snap_kernel
 from .core.joint_rows import project_positions as project_positions_kernel, solve_equality as solve_equality_kernel
 from .core.joint_rows import solve_limits as solve_limits_kernel
+from .core import world
 from .soft import make_soft, select_softness
 from .state import Event
 
@@ -591,6 +592,67 @@ class JointSet:
             bias_rate, mass_scale, impulse_scale = self._soft_terms(use_bias, self._tree_soft)
             self.tree.solve(self, model, state, bias_rate, mass_scale, impulse_scale, use_bias, h)
 
+    def substep_arrays(self, model, state):
+        """The joints' arguments of the compiled substeps after ``begin_step``:
+        (JointStep, JointArrays, TreeRows, TreeLayout, TreeScratch,
+        JointGeometry) (``engine.core.world``); ``finish_substeps`` takes the
+        JointStep's buffers back."""
+        from .joint_tree import _per_joint
+
+        s = self.settings
+        W, N = state.num_worlds, model.num_bodies
+        joints, kinds, twist_row, swing_row = self._row_orders
+        t = self.tree
+        g = self.geometry(state)
+        self._frames = g  # the substeps keep it at the current positions
+        if t is None:
+            T, layout, S = world.no_tree(W, N)
+            tree_soft, limits, schur, passes = np.zeros((3, W, 0)), False, False, 0
+            geometric, idx, weight = False, np.zeros(0, dtype=np.int64), np.zeros((W, 0))
+            M = M_inv = np.zeros((W, 0, 6, 6))
+        else:
+            nj = t.joints.size
+            T, layout, S = t.arrays, t.layout, t.scratch(W)
+            tree_soft = np.stack([_per_joint(x, W, nj) for x in self._soft_terms(True, self._tree_soft)])
+            limits, schur = bool(t.limits), t.uses_schur()
+            passes = int(t.active_set_passes)
+            geometric = t.geometric_weight is not None
+            idx, weight = t.loaded_joints(self, W) if geometric else (np.zeros(0, dtype=np.int64), np.zeros((W, 0)))
+            M, M_inv = t.M.copy(), t.M_inv.copy()  # the step's start metric stays with the articulated contacts
+        zone_on = self._limit_zone is not None
+        zs, zone = self._limit_zone if zone_on else (self._limit_soft, np.zeros((W, 0), dtype=bool))
+        J = len(self.names)
+        Jt = world.JointStep(
+            inv_mass=np.ascontiguousarray(model.inv_mass, dtype=float),
+            inv_inertia=np.ascontiguousarray(model.inv_inertia, dtype=float),
+            passive=bool(self._passive_order.size), passive_order=self._passive_order, stiffness=self.stiffness,
+            damping=self.damping, rest=np.ascontiguousarray(self.rest), warm_order=self._warm_joints,
+            breakable=self.breakable, lin_sum=self._lin_sum if self.breakable else np.zeros((W, 0, 3)),
+            ang_sum=self._ang_sum if self.breakable else np.zeros((W, 0)), relax=bool(s.joint_relax),
+            thesis=s.solver == "thesis", max_push=float(s.joint_max_push_out),
+            max_angular_push=float(s.joint_max_angular_push_out), eq_joints=joints, eq_kinds=kinds,
+            eq_soft=_floats(self._soft), gs_limit=self.gs_limit, twist_row=twist_row, swing_row=swing_row,
+            lower=self.lower, upper=self.upper, limit_soft=_floats(self._limit_soft), zone_on=zone_on,
+            zone=np.ascontiguousarray(zone, dtype=bool), no_zone=np.zeros((W, 0), dtype=bool),
+            zone_soft=_floats(zs), margin=float(s.limit_soft_margin), tree=t is not None, tree_soft=tree_soft,
+            limits=limits, schur=bool(schur), active_set_passes=passes,
+            tree_metric=t is not None and s.solver != "thesis", geometric=geometric, geo_joint=idx,
+            geo_parent=self.parent[idx], geo_child=self.child[idx], n_tree_loaded=0 if t is None else int(t.joints.size),
+            weight=weight, cap=float(s.joint_geometric_stiffness_cap),
+            load_before=np.zeros((W, J)) if geometric else np.zeros((W, 0)), rot=np.empty((W, N, 3, 3)),
+            iinv_raw=np.empty((W, N, 3, 3)), iinv=np.ascontiguousarray(self._iinv, dtype=float), M=M, M_inv=M_inv)
+        return Jt, self.arrays, T, layout, S, g
+
+    def finish_substeps(self, state, arrays, substeps):
+        """After the compiled substeps: the buffers they wrote (``arrays``, a
+        ``JointStep``) become the joints' and the tree's current ones."""
+        self._substeps_done = substeps
+        self._load_before = arrays.load_before if arrays.geometric else None
+        self._rot, self._iinv = arrays.rot, arrays.iinv
+        if self.tree is not None:
+            self.tree.iinv, self.tree.M, self.tree.M_inv = arrays.iinv, arrays.M, arrays.M_inv
+            self.tree._factored = None
+
     def _soft_terms(self, use_bias, soft):
         if use_bias:
             return soft.bias_rate, soft.mass_scale, soft.impulse_scale
@@ -642,6 +704,11 @@ class JointSet:
         colour by colour (engine.core.joint_rows.project_positions)."""
         project_positions_kernel(self.arrays, self._warm_joints, model.inv_mass, state.position,
                                  state.orientation, state.joint_broken)
+
+
+def _floats(soft):
+    """(bias_rate, mass_scale, impulse_scale) (3,) of a scalar softness."""
+    return np.array([soft.bias_rate, soft.mass_scale, soft.impulse_scale], dtype=float)
 
 
 def compile_joints(model, builder):

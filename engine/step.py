@@ -39,7 +39,8 @@ from .articulated_contacts import ArticulatedContacts
 from . import contact_projection
 from .control import Control
 from .errors import SimulationError
-from .integrators import explicit_euler, integrate_positions, integrate_velocities, runge_kutta4, velocity_effects
+from .core import world
+from .integrators import _control_arrays, explicit_euler, integrate_positions, integrate_velocities, runge_kutta4, velocity_effects
 from .math3d import quat_integrate
 
 
@@ -123,6 +124,72 @@ def _advance(model, state, control):
         joints.begin_step(model, state, h, touching, None if control is None else control.motor)
         if s.contacts_articulated and contacts is not None and contacts.rows is not None:
             contacts.rows.attach(ArticulatedContacts(model, state, contacts.rows, joints))
+    if joints is None or joints.loop_rows is None:
+        _compiled_substeps(model, state, control, joints, contacts, h, s.contacts_articulated)
+    else:
+        _substeps(model, state, control, constraints, h, passive)
+    # Before the constraints' end_step: the joints' projection closes the
+    # joints this move opens, and the contacts' restitution, which comes
+    # first, takes the joint frames of the moved positions.
+    moved = None if model.contacts is None else model.contacts.project_static(model, state)
+    if moved is not None and model.joints is not None:
+        model.joints.positions_moved()
+    rounds = moved is not None and joints is not None and joints.projects_tree
+    if rounds:
+        broken = state.joint_broken[moved]  # before the joints' end_step breaks any
+    for c in constraints:
+        c.end_step(model, state, h, events)
+    if rounds:
+        _further_projection_rounds(model, state, moved, broken)
+    if contacts is not None and contacts.rows is not None:
+        contacts.rows.articulated = None  # its response matrices served this step only
+    for effect in model.end_hooks:
+        effect.end_of_step(model, state, events)
+    state.step += 1
+    state.events = events
+
+
+_INTEGRATORS = {"symplectic": world.SYMPLECTIC, "euler": world.EULER, "rk4": world.RK4}
+
+
+def _compiled_substeps(model, state, control, joints, contacts, h, contacts_first):
+    """Every substep of every world in one kernel call (``engine.core.world``)."""
+    s = model.settings
+    W, N = state.num_worlds, model.num_bodies
+    fx = model.effect_arrays
+    rows = None if contacts is None else contacts.rows
+    contact_args = world.no_contacts() if rows is None else rows.substep_arrays(h)
+    joint_args = (world.no_joints(W, N, np.ascontiguousarray(model.inv_mass, dtype=float),
+                                  np.ascontiguousarray(model.inv_inertia, dtype=float))
+                  if joints is None else joints.substep_arrays(model, state))
+    c = world.StepConstants(h=float(h), substeps=int(s.substeps), iterations=int(s.iterations),
+                            relax_iterations=int(s.relax_iterations),
+                            free_relax_passes=int(s.free_contact_relax_passes),
+                            integrator=_INTEGRATORS[s.integrator], contacts_first=bool(contacts_first),
+                            effects=bool(fx.springs.stiff.size or fx.damping.linear.size),
+                            contacts=contacts is not None, joints=joints is not None)
+    force, torque, motor = _control_arrays(control, W)
+    broken = state.arrays.get("joint_broken")
+    J = 0 if model.joints is None else len(model.joints.names)
+    empty3 = np.zeros((W, J, 3))
+    arrays = world.StateArrays(
+        x=state.position, q=state.orientation, v=state.velocity, w=state.angular_velocity,
+        broken=np.zeros((W, 0), dtype=bool) if broken is None else broken,
+        lam_lin=state.arrays.get("joint_linear_impulse", empty3),
+        lam_ang=state.arrays.get("joint_angular_impulse", empty3),
+        lam_limit=state.arrays.get("joint_limit_impulse", empty3), spring_broken=state.spring_broken,
+        cforce=force, ctorque=torque, motor=motor)
+    world.substeps_batch(c, *contact_args, *joint_args, fx.bodies, fx.gravitation, fx.springs, fx.motors, fx.damping,
+                         arrays)
+    if rows is not None:
+        rows.warm_starts = c.substeps
+    if joints is not None:
+        joints.finish_substeps(state, joint_args[0], c.substeps)
+
+
+def _substeps(model, state, control, constraints, h, passive):
+    """The substeps stage by stage (the loop rows' coupled solve is not compiled yet)."""
+    s = model.settings
     for _ in range(s.substeps):
         if passive:
             # Passive joint springs and dampers act on the constrained velocities of
@@ -155,25 +222,6 @@ def _advance(model, state, control):
             state.orientation[...] = quat_integrate(state.orientation, state.angular_velocity - w1, h)
             _positions_moved(model, state, constraints)
             _solve(model, state, constraints, h, use_bias=False)
-    # Before the constraints' end_step: the joints' projection closes the
-    # joints this move opens, and the contacts' restitution, which comes
-    # first, takes the joint frames of the moved positions.
-    moved = None if model.contacts is None else model.contacts.project_static(model, state)
-    if moved is not None and model.joints is not None:
-        model.joints.positions_moved()
-    rounds = moved is not None and joints is not None and joints.projects_tree
-    if rounds:
-        broken = state.joint_broken[moved]  # before the joints' end_step breaks any
-    for c in constraints:
-        c.end_step(model, state, h, events)
-    if rounds:
-        _further_projection_rounds(model, state, moved, broken)
-    if contacts is not None and contacts.rows is not None:
-        contacts.rows.articulated = None  # its response matrices served this step only
-    for effect in model.end_hooks:
-        effect.end_of_step(model, state, events)
-    state.step += 1
-    state.events = events
 
 
 def _further_projection_rounds(model, state, moved, broken):

@@ -33,28 +33,32 @@ def _limit_rows_before(tree, js, state, h, use_bias):
 @pytest.mark.parametrize("schur", [True, False], ids=["one factorisation", "refactored each pass"])
 def test_limit_rows_end_each_tree_solve_complementary(monkeypatch, schur):
     """Both active-set solves (``SCHUR_LIMIT_ROWS``): a humanoid in the air
-    under random maximum torques (its limbs hit their limits every few
-    steps): after each tree solve the equality rows hold
-    (J u + b = 0), every limit row is at or past its bound's speed
-    (σ (J u + b) >= 0), the limit impulses push (σ λ >= 0, stored as
-    λ_lo, λ_hi, λ_swing >= 0), and a row with an impulse is held exactly."""
+    under random maximum torques. At each step's start a copy of the state,
+    its spins kicked at random so that limits close and open, gets the tree
+    solve the substeps run (``engine.core.tree_solve.solve_world``), biased
+    and then relaxed. After each solve the equality rows hold (J u + b = 0),
+    every limit row is at or past its bound's speed (σ (J u + b) >= 0), the
+    limit impulses push (σ λ >= 0, stored as λ_lo, λ_hi, λ_swing >= 0), and
+    a row with an impulse is held exactly."""
     b = e.SceneBuilder(**RIGID_LIMITS)
     add_humanoid(b)
     model = b.build()
     W = 4
     state = model.initial_state(W)
     controls = random_controls(model, W, seed=3)
-    solve = _TreeSolver.solve
+    js, tree = model.joints, model.joints.tree
+    h = model.settings.dt / model.settings.substeps
     worst = {"equality": 0.0, "closing": 0.0, "held": 0.0, "pulling": 0.0}
     counts = {"solves": 0, "held rows": 0}
 
-    def checked(tree, js, model_, state_, bias_rate, mass_scale, impulse_scale, use_bias, h):
-        rows, sigma, exists, bias = _limit_rows_before(tree, js, state_, h, use_bias)
-        solve(tree, js, model_, state_, bias_rate, mass_scale, impulse_scale, use_bias, h)
-        *_, mask, r_eq = tree.jacobians(js, state_, use_bias, bias_rate)
-        w = state_.angular_velocity
+    def checked_solve(copy, use_bias):
+        bias_rate, mass_scale, impulse_scale = js._soft_terms(use_bias, js._tree_soft)
+        rows, sigma, exists, bias = _limit_rows_before(tree, js, copy, h, use_bias)
+        tree.solve(js, model, copy, bias_rate, mass_scale, impulse_scale, use_bias, h)
+        *_, mask, r_eq = tree.jacobians(js, copy, use_bias, bias_rate)
+        w = copy.angular_velocity
         v = mat_vec(rows, w[:, js.child[tree.joints]] - w[:, js.parent[tree.joints]]) + bias
-        lam = state_.joint_limit_impulse[:, tree.joints]
+        lam = copy.joint_limit_impulse[:, tree.joints]
         lam_rows = np.stack((lam[..., 0] + lam[..., 1], lam[..., 2], np.zeros(lam.shape[:2])), axis=-1)
         held = exists & (lam_rows > 0)
         worst["equality"] = max(worst["equality"], float(np.abs(r_eq * mask).max()))
@@ -64,11 +68,19 @@ def test_limit_rows_end_each_tree_solve_complementary(monkeypatch, schur):
         counts["solves"] += 1
         counts["held rows"] += int(held.sum())
 
-    monkeypatch.setattr(_TreeSolver, "solve", checked)
     if not schur:
         monkeypatch.setattr(engine.joint_tree, "SCHUR_LIMIT_ROWS", -1)
+    rng = np.random.default_rng(5)
     for k in range(120):
-        e.step(model, state, controls[k % len(controls)])
+        u = controls[k % len(controls)]
+        copy = state.copy()
+        js.begin_step(model, copy, h)
+        # Kicks of the bodies' spins (normal, 2 rad/s) drive joints into and out of their limits.
+        copy.angular_velocity[...] += rng.normal(0.0, 2.0, copy.angular_velocity.shape)
+        checked_solve(copy, True)
+        checked_solve(copy, False)
+        e.step(model, state, u)
+    assert counts["solves"] == 240
     assert counts["held rows"] > 100, counts  # the limits did act
     assert worst["equality"] < 1e-8, worst  # m/s, rad/s
     assert worst["closing"] < 1e-5, worst  # rad/s (the active set adds rows closing faster than 1e-6)

@@ -1,0 +1,474 @@
+"""The substeps of one world's step, read top to bottom, and their batch.
+
+Each substep of h = dt / substeps seconds (``engine.step`` prepares the step
+before and finishes it after):
+
+* the passive joint springs and dampers (on the last substep's constrained
+  velocities, before this substep's forces);
+* the integrator: symplectic (velocities from the forces, the implicit
+  velocity effects, the biased solve, the positions, the relax solve),
+  explicit Euler (the thesis's: positions and velocities from the substep's
+  start, then the effects and both solves) or RK4 (the free motion, then the
+  solves, the constraint impulses moving the positions by h Δv);
+* a solve: with its bias, each constraint set's warm start first, then
+  ``iterations`` sweeps over the constraint sets in their order; without,
+  ``relax_iterations`` sweeps and ``free_relax_passes`` more over the
+  contact rows of unjointed bodies. The contacts go first with the
+  articulated contacts (their impulses already keep the joint rows, the
+  joints' limits then hold exactly), the joints first otherwise;
+* after the positions move, the joint rows take their frames, the bodies'
+  world inverse inertias and the joint tree's metric afresh (contact rows
+  keep the step's start, as in Box2D), and the tree's factors are rebuilt
+  at the next solve.
+
+A contact solve is the Gauss-Seidel sweep over the world's rows
+(:mod:`engine.core.contacts`), then the articulated rows in contact space
+(:mod:`engine.core.articulated`); a joint solve the Gauss-Seidel point and
+lock rows, the tree solve (:mod:`engine.core.tree_solve`), then the
+Gauss-Seidel limit rows (:mod:`engine.core.joint_rows`).
+
+``ContactStep`` and ``JointStep`` hold what the step's preparation computed
+(rows, softness, the per-world buffers the substeps write); a part a scene
+lacks comes as empty arrays with its flag off, so every scene runs the same
+compiled code.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from . import articulated as art
+from . import contacts as con
+from .effects import velocity_effects
+from .integrate import explicit_euler_world, free_positions, runge_kutta4_world, semi_implicit_velocities
+from .jit import SERIAL_BELOW, kernel, parallel_kernel, prange
+from .joint_rows import _add_load_world, _equality_world, _limits_world
+from .joints import _geometry_world, _inertia_world, _passive_world, _warm_start_world as _joint_warm_start
+from .tree_solve import metric, solve_world
+from .vec import quat_integrate
+
+#: ``StepConstants.integrator`` codes.
+SYMPLECTIC, EULER, RK4 = 0, 1, 2
+
+
+class StepConstants(NamedTuple):
+    """The constants of one step's substeps."""
+
+    h: float  # s, the substep
+    substeps: int
+    iterations: int  # sweeps of the biased solve
+    relax_iterations: int  # sweeps of the relax solve
+    free_relax_passes: int  # more relax sweeps over the contact rows of unjointed bodies
+    integrator: int  # SYMPLECTIC, EULER or RK4
+    contacts_first: bool  # the contacts before the joints in every solve
+    effects: bool  # stiff springs or damping: the implicit velocity effects run
+    contacts: bool  # the contacts are a constraint set
+    joints: bool  # the joints are a constraint set
+
+
+class ContactStep(NamedTuple):
+    """The step's contact rows (``engine.contact_solver.ContactRows``) and
+    their articulated part (``engine.articulated_contacts``), beside their
+    ``ContactRowArrays``, ``ContactView``, ``ArticulatedArrays``,
+    ``SolverParams`` and ``SoftParams`` (a ``prange`` loop takes no nested
+    tuple of arrays, so those travel as arguments of their own)."""
+
+    on: bool  # the step has rows
+    order: np.ndarray  # (rows swept,) int64: the sweep order, world by world
+    world_start: np.ndarray  # (W + 1,) int64: world w's swept rows are order[world_start[w]:world_start[w + 1]]
+    world_rows: np.ndarray  # (R,) int64: every row, world by world
+    row_start: np.ndarray  # (W + 1,) int64
+    bouncy: bool  # some row has restitution: the substeps' impulses are summed
+    lam_n_step: np.ndarray  # (R, 4) N s: Σ of the earlier substeps' normal impulses
+    lam_t1_step: np.ndarray  # (R, 4)
+    lam_t2_step: np.ndarray  # (R, 4)
+    articulated: bool  # rows are solved in contact space
+
+
+class JointStep(NamedTuple):
+    """The step's joints (``engine.joints.JointSet``) and joint tree
+    (``engine.joint_tree``): their rows and softness, and the per-world
+    buffers of the substeps (W worlds, N bodies, J joints, nj tree joints);
+    beside it their ``JointArrays``, ``JointGeometry`` (kept at the current
+    positions), ``TreeRows``, ``TreeLayout`` and ``TreeScratch``. Softness
+    terms are (bias_rate 1/s, mass_scale, impulse_scale)."""
+
+    inv_mass: np.ndarray  # (N,) 1/kg
+    inv_inertia: np.ndarray  # (N, 3) 1/(kg m²), principal
+    passive: bool
+    passive_order: np.ndarray  # (joints,) int64
+    stiffness: np.ndarray  # (J,) N m/rad
+    damping: np.ndarray  # (J,) N m s/rad
+    rest: np.ndarray  # (J, 3) rad
+    warm_order: np.ndarray  # (J,) int64: the warm start's joint order
+    breakable: bool
+    lin_sum: np.ndarray  # (W, J, 3) N s: the step's summed point impulses
+    ang_sum: np.ndarray  # (W, J) N m s
+    relax: bool  # the equality rows run in the relax solve too
+    thesis: bool  # the thesis's solver: the Gauss-Seidel equality rows take no bias
+    max_push: float  # m/s
+    max_angular_push: float  # rad/s
+    eq_joints: np.ndarray  # (rows,) int64: the Gauss-Seidel equality rows' joints
+    eq_kinds: np.ndarray  # (rows,) int64
+    eq_soft: np.ndarray  # (3,): the Gauss-Seidel equality rows' softness in the biased solve
+    gs_limit: np.ndarray  # (limits,) int64: the Gauss-Seidel limit rows' joints
+    twist_row: np.ndarray  # (limits,) bool
+    swing_row: np.ndarray  # (limits,) bool
+    lower: np.ndarray  # (J,) rad
+    upper: np.ndarray  # (J,) rad
+    limit_soft: np.ndarray  # (3,): the Gauss-Seidel limit rows'
+    zone_on: bool  # some limit rows are soft within the margin this step
+    zone: np.ndarray  # (W, limits) bool
+    no_zone: np.ndarray  # (W, 0) bool
+    zone_soft: np.ndarray  # (3,): theirs within the margin
+    margin: float  # rad
+    tree: bool  # a joint tree is solved (tree joint solver, no exact loops)
+    tree_soft: np.ndarray  # (3, W, nj): bias_rate, mass_scale, impulse_scale of each tree joint
+    limits: bool  # the limit rows are in the tree solve
+    schur: bool
+    active_set_passes: int
+    tree_metric: bool  # the tree's metric follows the positions (not with the thesis's solver)
+    geometric: bool  # geometric stiffness in the metric
+    geo_joint: np.ndarray  # (loaded,) int64
+    geo_parent: np.ndarray  # (loaded,) int64
+    geo_child: np.ndarray  # (loaded,) int64
+    n_tree_loaded: int
+    weight: np.ndarray  # (W, loaded)
+    cap: float
+    load_before: np.ndarray  # (W, J) N s: |λ| before the substep's solve
+    rot: np.ndarray  # (W, N, 3, 3)
+    iinv_raw: np.ndarray  # (W, N, 3, 3): the world inverse inertias
+    iinv: np.ndarray  # (W, N, 3, 3): with the metric's geometric stiffness
+    M: np.ndarray  # (W, nb, 6, 6)
+    M_inv: np.ndarray  # (W, nb, 6, 6)
+
+
+class StateArrays(NamedTuple):
+    """The state's and the control's arrays of W worlds."""
+
+    x: np.ndarray  # (W, N, 3) m
+    q: np.ndarray  # (W, N, 4)
+    v: np.ndarray  # (W, N, 3) m/s
+    w: np.ndarray  # (W, N, 3) rad/s
+    broken: np.ndarray  # (W, J) bool
+    lam_lin: np.ndarray  # (W, J, 3) N s
+    lam_ang: np.ndarray  # (W, J, 3) N m s
+    lam_limit: np.ndarray  # (W, J, 3) N m s
+    spring_broken: np.ndarray  # (W, springs) bool
+    cforce: np.ndarray  # (W, N, 3) or (W, 0, 3) N
+    ctorque: np.ndarray  # (W, N, 3) or (W, 0, 3) N m
+    motor: np.ndarray  # (W, A) or (W, 0) N m
+
+
+# ------------------------------------------------------------------ constraint sets
+# Ct = (ContactStep, ContactRowArrays, ContactView, ArticulatedArrays,
+# SolverParams, SoftParams) and Jx = (JointStep, JointArrays, TreeRows,
+# TreeLayout, TreeScratch, JointGeometry): tuples built in the world's kernel.
+
+@kernel
+def _contacts_warm_start(Ct, wi, substep, v, w):
+    """The contact rows' warm start of world wi: the impulses of the last
+    substep summed into the step's (restitution takes them back), then
+    applied again, the articulated rows' in contact space first."""
+    C, R, view, S, _, _ = Ct
+    if not C.on:
+        return
+    if substep > 0 and C.bouncy:
+        for k in range(C.row_start[wi], C.row_start[wi + 1]):
+            r = C.world_rows[k]
+            for j in range(4):
+                C.lam_n_step[r, j] += R.lam_n[r, j]
+                C.lam_t1_step[r, j] += R.lam_t1[r, j]
+                C.lam_t2_step[r, j] += R.lam_t2[r, j]
+    if C.articulated and S.row_start[wi + 1] > S.row_start[wi]:
+        art._warm_start_world(view, S, wi, v, w)
+    con._warm_start_world(R, C.order, C.world_start[wi], C.world_start[wi + 1], v, w)
+
+
+@kernel
+def _contacts_solve(Ct, wi, x, q, v, w, use_bias, only_free):
+    """One sweep of world wi's contact rows (``only_free``: those of unjointed
+    bodies), then, unless ``only_free``, its articulated rows."""
+    C, R, view, S, p, ap = Ct
+    if not C.on:
+        return
+    con._solve_world(R, C.order, C.world_start[wi], C.world_start[wi + 1], x, q, v, w, p, use_bias, only_free)
+    if not only_free and C.articulated and S.row_start[wi + 1] > S.row_start[wi]:
+        art._solve_world(view, S, wi, x, q, v, w, ap, use_bias)
+
+
+@kernel
+def _joints_warm_start(Jx, wi, substep, s):
+    """The joints' warm start of world wi: the last substep's impulses into
+    the step's load (breaking), the load before this substep's solve
+    (geometric stiffness), then every stored impulse applied again."""
+    Jt, J, _, _, _, g = Jx
+    if substep > 0 and Jt.breakable:
+        _add_load_world(s.lam_lin[wi], s.lam_ang[wi], s.lam_limit[wi], Jt.lin_sum[wi], Jt.ang_sum[wi])
+    if Jt.tree and Jt.geometric:
+        lam = s.lam_lin[wi]
+        for j in range(lam.shape[0]):
+            Jt.load_before[wi, j] = np.sqrt(lam[j, 0] * lam[j, 0] + lam[j, 1] * lam[j, 1] + lam[j, 2] * lam[j, 2])
+    _joint_warm_start(J, Jt.warm_order, Jt.iinv[wi], Jt.inv_mass, g, wi, s.lam_lin[wi], s.lam_ang[wi],
+                      s.lam_limit[wi], s.v[wi], s.w[wi])
+
+
+@kernel
+def _joints_solve(Jx, wi, s, c, use_bias, factored, unit):
+    """One solve of world wi's joints: the equality rows (Gauss-Seidel, then
+    the tree) in the biased solve and, with ``relax``, the relax solve; the
+    Gauss-Seidel limit rows in every solve. ``factored``: the tree's factors
+    hold the current positions; returns whether they do after the solve.
+    ``unit`` (3, nj): the relax solve's softness terms (0, 1, 0)."""
+    Jt, J, T, layout, S, g = Jx
+    if use_bias or Jt.relax:
+        if Jt.eq_joints.size:
+            soft = use_bias and not Jt.thesis
+            br = Jt.eq_soft[0] if soft else 0.0
+            ms = Jt.eq_soft[1] if soft else 1.0
+            isc = Jt.eq_soft[2] if soft else 0.0
+            _equality_world(J, Jt.eq_joints, Jt.eq_kinds, Jt.iinv[wi], Jt.inv_mass, g, wi, s.x[wi], s.v[wi],
+                            s.w[wi], s.lam_lin[wi], s.lam_ang[wi], s.broken[wi], br, ms, isc, Jt.max_push,
+                            Jt.max_angular_push)
+        if Jt.tree:
+            terms = Jt.tree_soft[:, wi] if use_bias else unit
+            solve_world(T, layout, g.fpw[wi], g.fcw[wi], g.ra[wi], g.rb[wi], g.jt[wi], g.twist[wi], g.js[wi],
+                        g.c_swing[wi], g.twist_defined[wi], s.broken[wi], Jt.iinv[wi], Jt.M[wi], Jt.M_inv[wi],
+                        s.x[wi], s.q[wi], s.v[wi], s.w[wi], s.lam_lin[wi], s.lam_ang[wi], s.lam_limit[wi], terms[0],
+                        terms[1], terms[2], use_bias, c.h, Jt.max_push, Jt.max_angular_push, Jt.limits, Jt.schur,
+                        Jt.active_set_passes, not factored, S.E[wi], S.mask[wi], S.Ja[wi], S.Jb[wi], S.Dinv[wi],
+                        S.L[wi], S.B[wi])
+            factored = True
+    if Jt.gs_limit.size:
+        br = Jt.limit_soft[0] if use_bias else 0.0
+        ms = Jt.limit_soft[1] if use_bias else 1.0
+        isc = Jt.limit_soft[2] if use_bias else 0.0
+        if use_bias and Jt.zone_on:
+            zone, zs = Jt.zone[wi], Jt.zone_soft
+        else:
+            zone, zs = Jt.no_zone[wi], Jt.limit_soft
+        _limits_world(J, Jt.gs_limit, Jt.twist_row, Jt.swing_row, Jt.lower, Jt.upper, Jt.iinv[wi], g, wi,
+                      s.w[wi], s.lam_limit[wi], s.broken[wi], c.h, use_bias, br, ms, isc, zone, zs[0], zs[1], zs[2],
+                      Jt.margin, Jt.max_angular_push)
+    return factored
+
+
+@kernel
+def _positions_moved(Jx, wi, s, c, warmed):
+    """The bodies moved and turned: world wi's joint geometry, world inverse
+    inertias and tree metric at the new positions, with geometric stiffness
+    from the joints' load through the substep: once a warm start has recorded
+    |λ| before the biased solve (``warmed``), the smaller of that and |λ|."""
+    Jt, J, T, _, _, g = Jx
+    _geometry_world(J, s.x[wi], s.q[wi], g, wi)
+    _inertia_world(s.q[wi], Jt.inv_inertia, Jt.rot[wi], Jt.iinv_raw[wi])
+    if Jt.tree_metric:
+        metric(T, Jt.rot[wi], Jt.iinv_raw[wi], Jt.geo_joint, Jt.geo_parent, Jt.geo_child, Jt.n_tree_loaded,
+               Jt.weight[wi], s.lam_lin[wi], Jt.load_before[wi], Jt.geometric and warmed, g.ra[wi], g.rb[wi], c.h, Jt.cap,
+               Jt.geometric, Jt.iinv[wi], Jt.M[wi], Jt.M_inv[wi])
+    else:
+        src, dst = Jt.iinv_raw[wi], Jt.iinv[wi]
+        for i in range(src.shape[0]):
+            for r in range(3):
+                for k in range(3):
+                    dst[i, r, k] = src[i, r, k]
+
+
+@kernel
+def _solve(c, Ct, Jx, wi, s, substep, use_bias, factored, unit):
+    """A biased or relax solve of world wi; returns whether the tree's
+    factors hold the current positions."""
+    if not (c.contacts or c.joints):
+        return factored
+    x, q, v, w = s.x[wi], s.q[wi], s.v[wi], s.w[wi]
+    if use_bias:
+        for part in range(2):
+            if (part == 0) == c.contacts_first:
+                if c.contacts:
+                    _contacts_warm_start(Ct, wi, substep, v, w)
+            elif c.joints:
+                _joints_warm_start(Jx, wi, substep, s)
+    sweeps = c.iterations if use_bias else c.relax_iterations
+    for _ in range(sweeps):
+        for part in range(2):
+            if (part == 0) == c.contacts_first:
+                if c.contacts:
+                    _contacts_solve(Ct, wi, x, q, v, w, use_bias, False)
+            elif c.joints:
+                factored = _joints_solve(Jx, wi, s, c, use_bias, factored, unit)
+    if not use_bias and c.contacts:
+        for _ in range(c.free_relax_passes):
+            _contacts_solve(Ct, wi, x, q, v, w, False, True)
+    return factored
+
+
+# ------------------------------------------------------------------ one world
+@kernel
+def substeps(c, C, R, view, AS, p, ap, Jt, J, T, layout, TS, g, bodies, gravitation, springs, motors, damping, s,
+             wi):
+    """Every substep of world wi's step, in place on the state ``s``."""
+    Ct = (C, R, view, AS, p, ap)
+    Jx = (Jt, J, T, layout, TS, g)
+    n = s.x.shape[1]
+    x, q, v, w = s.x[wi], s.q[wi], s.v[wi], s.w[wi]
+    sb, broken = s.spring_broken[wi], s.broken[wi]
+    force, torque = np.empty((n, 3)), np.empty((n, 3))
+    lb = np.empty((n, 3))
+    nj = Jt.tree_soft.shape[2]
+    unit = np.zeros((3, nj))
+    for j in range(nj):
+        unit[1, j] = 1.0
+    rk4 = c.integrator == RK4
+    m = n if rk4 else 0
+    xs, vs, ws, sx, sv, sw = (np.empty((m, 3)), np.empty((m, 3)), np.empty((m, 3)), np.empty((m, 3)),
+                              np.empty((m, 3)), np.empty((m, 3)))
+    qs, sq = np.empty((m, 4)), np.empty((m, 4))
+    v1, w1 = np.empty((m, 3)), np.empty((m, 3))
+    factored = False
+    for sub in range(c.substeps):
+        if c.joints and Jt.passive:
+            _passive_world(J, Jt.passive_order, Jt.iinv[wi], g, wi, Jt.stiffness, Jt.damping, Jt.rest, broken, w,
+                           c.h)
+        if c.integrator == SYMPLECTIC:
+            semi_implicit_velocities(bodies, gravitation, springs, motors, x, q, v, w, sb, broken, s.cforce[wi],
+                                     s.ctorque[wi], s.motor[wi], force, torque, c.h)
+            if c.effects:
+                velocity_effects(bodies, springs, damping, x, q, v, w, sb, c.h)
+            factored = _solve(c, Ct, Jx, wi, s, sub, True, factored, unit)
+            free_positions(bodies, x, q, v, w, lb, c.h)
+            if c.joints:
+                _positions_moved(Jx, wi, s, c, True)
+                factored = False
+            factored = _solve(c, Ct, Jx, wi, s, sub, False, factored, unit)
+        elif c.integrator == EULER:
+            explicit_euler_world(bodies, gravitation, springs, motors, x, q, v, w, sb, broken, s.cforce[wi],
+                                 s.ctorque[wi], s.motor[wi], force, torque, c.h)
+            if c.joints:
+                _positions_moved(Jx, wi, s, c, sub > 0)
+                factored = False
+            if c.effects:
+                velocity_effects(bodies, springs, damping, x, q, v, w, sb, c.h)
+            factored = _solve(c, Ct, Jx, wi, s, sub, True, factored, unit)
+            factored = _solve(c, Ct, Jx, wi, s, sub, False, factored, unit)
+        else:
+            runge_kutta4_world(bodies, gravitation, springs, motors, x, q, v, w, sb, broken, s.cforce[wi],
+                               s.ctorque[wi], s.motor[wi], force, torque, xs, qs, vs, ws, sx, sq, sv, sw, c.h)
+            if c.joints:
+                _positions_moved(Jx, wi, s, c, sub > 0)
+                factored = False
+            for i in range(n):
+                for k in range(3):
+                    v1[i, k] = v[i, k]
+                    w1[i, k] = w[i, k]
+            if c.effects:
+                velocity_effects(bodies, springs, damping, x, q, v, w, sb, c.h)
+            factored = _solve(c, Ct, Jx, wi, s, sub, True, factored, unit)
+            # Constraint impulses move the positions by h Δv beyond the RK4 flow.
+            for i in range(n):
+                for k in range(3):
+                    x[i, k] = x[i, k] + c.h * (v[i, k] - v1[i, k])
+                qi = quat_integrate((q[i, 0], q[i, 1], q[i, 2], q[i, 3]),
+                                    (w[i, 0] - w1[i, 0], w[i, 1] - w1[i, 1], w[i, 2] - w1[i, 2]), c.h)
+                for k in range(4):
+                    q[i, k] = qi[k]
+            if c.joints:
+                _positions_moved(Jx, wi, s, c, True)
+                factored = False
+            factored = _solve(c, Ct, Jx, wi, s, sub, False, factored, unit)
+
+
+# ------------------------------------------------------------------ batch
+@parallel_kernel
+def substeps_batch(c, C, R, view, AS, p, ap, Jt, J, T, layout, TS, g, bodies, gravitation, springs, motors, damping,
+                   s):
+    """``substeps`` of every world, one world per thread: the arguments of
+    ``substeps`` without the world."""
+    nw = s.x.shape[0]
+    if nw < SERIAL_BELOW:
+        for wi in range(nw):
+            substeps(c, C, R, view, AS, p, ap, Jt, J, T, layout, TS, g, bodies, gravitation, springs, motors,
+                     damping, s, wi)
+    else:
+        for wi in prange(nw):
+            substeps(c, C, R, view, AS, p, ap, Jt, J, T, layout, TS, g, bodies, gravitation, springs, motors,
+                     damping, s, wi)
+
+
+# ------------------------------------------------------------------ absent parts
+def contact_row_arrays(R):
+    """``ContactRowArrays`` of R rows, uninitialised (the step's rows, to be filled)."""
+    e = np.empty
+    return con.ContactRowArrays(
+        w=e(R, dtype=np.int64), a=e(R, dtype=np.int64), b=e(R, dtype=np.int64), dyn_a=e(R, dtype=bool),
+        dyn_b=e(R, dtype=bool), free=e(R, dtype=bool), inv_ma=e(R), inv_mb=e(R), n=e((R, 3)), t1=e((R, 3)),
+        t2=e((R, 3)), valid=e((R, 4), dtype=bool), xa0=e((R, 3)), xb0=e((R, 3)), ra=e((R, 4, 3)), rb=e((R, 4, 3)),
+        la=e((R, 4, 3)), lb=e((R, 4, 3)), sep0=e((R, 4)), ia=e((R, 3, 3)), ib=e((R, 3, 3)), mn=e((R, 4)),
+        mt1=e((R, 4)), mt2=e((R, 4)), mu=e((R, 4)), e=e(R), lam_n=e((R, 4)), lam_t1=e((R, 4)), lam_t2=e((R, 4)),
+        max_lam_n=e((R, 4)), s_close=e((R, 4)), vn_close=e((R, 4)))
+
+
+def no_articulated(contact_rows):
+    """(view, S, ap) of a step without articulated rows: the view of
+    ``contact_rows`` and no column."""
+    z = np.zeros
+    S = art.ArticulatedArrays(
+        held=z(0, dtype=np.int64), pt_start=z(1, dtype=np.int64), pt_row=z(0, dtype=np.int64),
+        pt_slot=z(0, dtype=np.int64), row_start=z(1, dtype=np.int64), rows=z(0, dtype=np.int64),
+        tree_bodies=z(0, dtype=np.int64), M=z((0, 0, 6, 6)), body=z(0, dtype=np.int64), J=z((0, 6)),
+        Z=z((0, 0)), A=z(0), a_start=z(1, dtype=np.int64), m=z(0), mu=z(0), finite=z(0, dtype=bool))
+    view = art.ContactView(*(getattr(contact_rows, f) for f in art.ContactView._fields))
+    ap = art.SoftParams(h=0.0, bias_rate=0.0, mass_scale=1.0, impulse_scale=0.0, slop=0.0, max_push_out=0.0,
+                        thesis=False, sweeps=0)
+    return view, S, ap
+
+
+def no_contacts():
+    """The contact arguments (C, R, view, S, p, ap) of a step without contact rows."""
+    R = contact_row_arrays(0)
+    view, S, ap = no_articulated(R)
+    i0 = np.zeros(0, dtype=np.int64)
+    p = con.SolverParams(h=0.0, bias_rate=0.0, mass_scale=1.0, impulse_scale=0.0, max_push_out=0.0, slop=0.0,
+                         load_cap=1.0, g_mag=0.0, bouncy=False, thesis=False)
+    C = ContactStep(on=False, order=i0, world_start=np.zeros(1, dtype=np.int64), world_rows=i0,
+                    row_start=np.zeros(1, dtype=np.int64), bouncy=False, lam_n_step=np.zeros((0, 4)),
+                    lam_t1_step=np.zeros((0, 4)), lam_t2_step=np.zeros((0, 4)), articulated=False)
+    return C, R, view, S, p, ap
+
+
+def no_tree(num_worlds, num_bodies):
+    """(T, layout, S) of a scene without a joint tree."""
+    from .tree import TreeLayout
+    from .tree_solve import TreeRows, empty_scratch
+
+    i0, b0, f0 = np.zeros(0, dtype=np.int64), np.zeros(0, dtype=bool), np.zeros(0)
+    T = TreeRows(joint=i0, a=i0, b=i0, hinge=b0, fixed=b0, ball=b0, ang_mask=np.zeros((0, 3)),
+                 eq_mask=np.zeros((0, 6)), lo=f0, hi=f0, lo_finite=b0, hi_finite=b0,
+                 limit_exists=np.zeros((0, 2), dtype=bool), cand_joint=i0, cand_slot=i0, bodies=i0, mass=f0,
+                 inertia=np.zeros((0, 3)), inv_mass=np.zeros(num_bodies))
+    layout = TreeLayout(order=i0, parent=i0, n_bodies=0, leaf=b0, ball=b0, child_is_b=b0)
+    return T, layout, empty_scratch(num_worlds, 0, 0, 0)
+
+
+def no_joints(num_worlds, num_bodies, inv_mass, inv_inertia):
+    """The joint arguments (Jt, J, T, layout, S, g) of a scene without joints."""
+    from .joints import JointArrays, empty_geometry
+
+    W, N = num_worlds, num_bodies
+    i0, b0, f0 = np.zeros(0, dtype=np.int64), np.zeros(0, dtype=bool), np.zeros(0)
+    J = JointArrays(kind=i0, parent=i0, child=i0, frame_p=np.zeros((0, 4)), frame_c=np.zeros((0, 4)),
+                    anchor_p=np.zeros((0, 3)), anchor_c=np.zeros((0, 3)), cone=np.zeros((0, 2)))
+    T, layout, S = no_tree(W, N)
+    unit = np.array([0.0, 1.0, 0.0])
+    Jt = JointStep(
+        inv_mass=inv_mass, inv_inertia=inv_inertia, passive=False, passive_order=i0, stiffness=f0, damping=f0,
+        rest=np.zeros((0, 3)), warm_order=i0, breakable=False, lin_sum=np.zeros((W, 0, 3)), ang_sum=np.zeros((W, 0)),
+        relax=False, thesis=False, max_push=0.0, max_angular_push=0.0, eq_joints=i0, eq_kinds=i0, eq_soft=unit,
+        gs_limit=i0, twist_row=b0, swing_row=b0, lower=f0, upper=f0, limit_soft=unit, zone_on=False,
+        zone=np.zeros((W, 0), dtype=bool), no_zone=np.zeros((W, 0), dtype=bool), zone_soft=unit, margin=0.0,
+        tree=False, tree_soft=np.zeros((3, W, 0)), limits=False, schur=False, active_set_passes=0, tree_metric=False,
+        geometric=False, geo_joint=i0, geo_parent=i0, geo_child=i0, n_tree_loaded=0, weight=np.zeros((W, 0)),
+        cap=0.0, load_before=np.zeros((W, 0)), rot=np.zeros((W, 0, 3, 3)), iinv_raw=np.zeros((W, 0, 3, 3)),
+        iinv=np.zeros((W, 0, 3, 3)), M=np.zeros((W, 0, 6, 6)), M_inv=np.zeros((W, 0, 6, 6)))
+    return Jt, J, T, layout, S, empty_geometry(W, 0)
