@@ -203,7 +203,7 @@ class _TreeSolver(_Rows):
             limit_exists=self.limit_exists, cand_joint=self.limit_candidates[0], cand_slot=self.limit_candidates[1],
             bodies=b.astype(np.int64), mass=np.ascontiguousarray(model.mass[b], dtype=float),
             inertia=np.ascontiguousarray(model.inertia[b], dtype=float),
-            inv_mass=np.ascontiguousarray(model.inv_mass, dtype=float))
+            inv_mass=np.array(model.inv_mass, dtype=float))
         self._scratch = None  # TreeScratch of the last solve's batch (engine.core.tree_solve)
 
     def begin_step(self, js, model, state, h):

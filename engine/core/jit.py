@@ -9,8 +9,10 @@ return inf/NaN on a division by zero instead of raising
 (``error_model="numpy"``); denominators are guarded where it matters.
 
 A batched step (W >= ``SERIAL_BELOW`` worlds) runs its ``prange`` loops on
-numba's worker threads, each world on one thread from start to end, so the
-thread count changes no bit; ``set_threads`` chooses it (default: all cores,
+numba's worker threads and its substeps (``over_worlds``) as ranges of
+worlds on a pool of Python threads calling a kernel that releases the GIL;
+either way each world is on one thread from start to end, so the thread
+count changes no bit. ``set_threads`` chooses it (default: all cores,
 ``NUMBA_NUM_THREADS``). The threading layer is GNU OpenMP where it loads
 (its launch is cheap; see below): after a batched step in a process, its
 ``fork()``ed children must not run batched steps (use the ``spawn`` or
@@ -21,6 +23,8 @@ from __future__ import annotations
 
 import numbers
 import os
+import threading
+from concurrent.futures import ThreadPoolExecutor
 
 import numba
 
@@ -69,6 +73,39 @@ def set_threads(n: int | None = None) -> int:
                          f"(NUMBA_NUM_THREADS), got {n!r}")
     numba.set_num_threads(int(n))
     return int(n)
+
+
+_pool: ThreadPoolExecutor | None = None
+_pool_lock = threading.Lock()
+
+
+def over_worlds(kernel_of_range, args, num_worlds: int) -> None:
+    """Run ``kernel_of_range(*args, first, stop)``, a kernel stepping the
+    worlds first..stop-1, over all ``num_worlds`` worlds: on the calling
+    thread below ``SERIAL_BELOW`` worlds or with one thread, else in
+    ``get_threads()`` contiguous ranges on as many threads. The kernel must
+    be compiled with ``nogil=True`` (``kernel`` is), so the ranges run at
+    once; each world is stepped by one thread, so the count changes no bit.
+
+    For a kernel whose arguments are many tuples of arrays, where a
+    ``prange`` loop would cost minutes of compile time (numba's parallel
+    lowering grows steeply with a tuple's fields)."""
+    global _pool
+    threads = min(get_threads(), num_worlds)
+    if num_worlds < SERIAL_BELOW or threads <= 1:
+        kernel_of_range(*args, 0, num_worlds)
+        return
+    with _pool_lock:
+        if _pool is None or _pool._max_workers < threads:
+            _pool = ThreadPoolExecutor(max_workers=max(threads, numba.config.NUMBA_NUM_THREADS),
+                                       thread_name_prefix="ragdoll-worlds")
+        pool = _pool
+    bounds = [num_worlds * k // threads for k in range(threads + 1)]
+    # The calling thread takes the first range itself.
+    futures = [pool.submit(kernel_of_range, *args, bounds[k], bounds[k + 1]) for k in range(1, threads)]
+    kernel_of_range(*args, bounds[0], bounds[1])
+    for f in futures:
+        f.result()
 
 
 def get_threads() -> int:

@@ -43,7 +43,7 @@ from . import articulated as art
 from . import contacts as con
 from .effects import velocity_effects
 from .integrate import explicit_euler_world, free_positions, runge_kutta4_world, semi_implicit_velocities
-from .jit import SERIAL_BELOW, kernel, parallel_kernel, prange
+from .jit import kernel
 from .joint_rows import _add_load_world, _equality_world, _limits_world
 from .joints import _geometry_world, _inertia_world, _passive_world, _warm_start_world as _joint_warm_start
 from .tree_solve import metric, solve_world
@@ -72,8 +72,8 @@ class ContactStep(NamedTuple):
     """The step's contact rows (``engine.contact_solver.ContactRows``) and
     their articulated part (``engine.articulated_contacts``), beside their
     ``ContactRowArrays``, ``ContactView``, ``ArticulatedArrays``,
-    ``SolverParams`` and ``SoftParams`` (a ``prange`` loop takes no nested
-    tuple of arrays, so those travel as arguments of their own)."""
+    ``SolverParams`` and ``SoftParams`` (travelling as arguments of their
+    own: numba's compile time grows steeply with a tuple's fields)."""
 
     on: bool  # the step has rows
     order: np.ndarray  # (rows swept,) int64: the sweep order, world by world
@@ -380,20 +380,17 @@ def substeps(c, C, R, view, AS, p, ap, Jt, J, T, layout, TS, g, bodies, gravitat
 
 
 # ------------------------------------------------------------------ batch
-@parallel_kernel
-def substeps_batch(c, C, R, view, AS, p, ap, Jt, J, T, layout, TS, g, bodies, gravitation, springs, motors, damping,
-                   s):
-    """``substeps`` of every world, one world per thread: the arguments of
-    ``substeps`` without the world."""
-    nw = s.x.shape[0]
-    if nw < SERIAL_BELOW:
-        for wi in range(nw):
-            substeps(c, C, R, view, AS, p, ap, Jt, J, T, layout, TS, g, bodies, gravitation, springs, motors,
-                     damping, s, wi)
-    else:
-        for wi in prange(nw):
-            substeps(c, C, R, view, AS, p, ap, Jt, J, T, layout, TS, g, bodies, gravitation, springs, motors,
-                     damping, s, wi)
+@kernel
+def substeps_worlds(c, C, R, view, AS, p, ap, Jt, J, T, layout, TS, g, bodies, gravitation, springs, motors, damping,
+                    s, first, stop):
+    """``substeps`` of the worlds first..stop-1 in turn: the arguments of
+    ``substeps`` without the world. Batches run ranges of worlds on several
+    threads (``jit.over_worlds``), not a ``prange``: numba's parallel
+    lowering of a loop whose body takes these many-field tuples took longer
+    to compile than every other kernel together."""
+    for wi in range(first, stop):
+        substeps(c, C, R, view, AS, p, ap, Jt, J, T, layout, TS, g, bodies, gravitation, springs, motors, damping, s,
+                 wi)
 
 
 # ------------------------------------------------------------------ absent parts

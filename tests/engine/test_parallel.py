@@ -240,3 +240,21 @@ def test_spawned_children_step_batches_after_the_parent_did():
         p.join(timeout=60)
     assert p.exitcode == 0
     assert np.array_equal(position, state.position)
+
+
+def test_every_scene_kind_runs_one_compiled_substeps_kernel():
+    """The substeps kernel's arguments have the same numba types whatever
+    the scene lacks (no contacts, no joints, no tree, Gauss-Seidel joints,
+    each integrator) and however many worlds it has: it compiles once, and
+    its compile (the largest of the engine's) is paid once."""
+    from engine.core import world
+    from engine.warmup import scenes
+
+    models = [model for _, model in scenes()]
+    b = e.SceneBuilder()
+    b.add_body("free", e.Sphere(0.1), mass=1.0, position=(0, 0, 1.0))  # nothing but a body in the air
+    models.append(b.build())
+    for model in models:
+        for num_worlds in (1, W):
+            e.step(model, model.initial_state(num_worlds))
+    assert len(world.substeps_worlds.signatures) == 1, world.substeps_worlds.signatures
