@@ -76,6 +76,7 @@ def set_threads(n: int | None = None) -> int:
 
 
 _pool: ThreadPoolExecutor | None = None
+_pool_pid = 0  # the process that made _pool: a fork()ed child has none of its threads
 _pool_lock = threading.Lock()
 
 
@@ -90,15 +91,16 @@ def over_worlds(kernel_of_range, args, num_worlds: int) -> None:
     For a kernel whose arguments are many tuples of arrays, where a
     ``prange`` loop would cost minutes of compile time (numba's parallel
     lowering grows steeply with a tuple's fields)."""
-    global _pool
+    global _pool, _pool_pid
     threads = min(get_threads(), num_worlds)
     if num_worlds < SERIAL_BELOW or threads <= 1:
         kernel_of_range(*args, 0, num_worlds)
         return
     with _pool_lock:
-        if _pool is None or _pool._max_workers < threads:
-            _pool = ThreadPoolExecutor(max_workers=max(threads, numba.config.NUMBA_NUM_THREADS),
-                                       thread_name_prefix="ragdoll-worlds")
+        if _pool is None or _pool_pid != os.getpid():
+            # One worker per thread numba may use (set_threads never asks for more).
+            _pool = ThreadPoolExecutor(max_workers=numba.config.NUMBA_NUM_THREADS, thread_name_prefix="ragdoll-worlds")
+            _pool_pid = os.getpid()
         pool = _pool
     bounds = [num_worlds * k // threads for k in range(threads + 1)]
     # The calling thread takes the first range itself.
