@@ -35,13 +35,20 @@ from dataclasses import replace
 
 import numpy as np
 
-from .articulated_contacts import ArticulatedContacts
 from . import contact_projection
+from .articulated_contacts import ArticulatedContacts
 from .control import Control
-from .errors import SimulationError
 from .core import world
 from .core.jit import over_worlds
-from .integrators import _control_arrays, explicit_euler, integrate_positions, integrate_velocities, runge_kutta4, velocity_effects
+from .errors import SimulationError
+from .integrators import (
+    _control_arrays,
+    explicit_euler,
+    integrate_positions,
+    integrate_velocities,
+    runge_kutta4,
+    velocity_effects,
+)
 from .math3d import quat_integrate
 
 
@@ -180,8 +187,8 @@ def _compiled_substeps(model, state, control, joints, contacts, h, contacts_firs
         lam_ang=state.arrays.get("joint_angular_impulse", empty3),
         lam_limit=state.arrays.get("joint_limit_impulse", empty3), spring_broken=state.spring_broken,
         cforce=force, ctorque=torque, motor=motor)
-    over_worlds(world.substeps_worlds, (c, *contact_args, *joint_args, fx.bodies, fx.gravitation, fx.springs, fx.motors,
-                                        fx.damping, arrays), W)
+    over_worlds(world.substeps, (c, *contact_args, *joint_args, fx.bodies, fx.gravitation, fx.springs, fx.motors,
+                                 fx.damping, arrays), W)
     if rows is not None:
         rows.warm_starts = c.substeps
     if joints is not None:

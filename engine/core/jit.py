@@ -47,6 +47,11 @@ if "NUMBA_THREADING_LAYER" not in os.environ and "NUMBA_THREADING_LAYER_PRIORITY
     numba.config.THREADING_LAYER = "default"
 
 kernel = numba.njit(cache=True, fastmath=False, error_model="numpy", nogil=True)
+#: ``kernel`` for a helper called only from other kernels: no wrappers for
+#: calls from Python, which for a helper taking many tuples of arrays cost
+#: seconds of compile time each.
+inner_kernel = numba.njit(cache=True, fastmath=False, error_model="numpy", nogil=True, no_cpython_wrapper=True,
+                          no_cfunc_wrapper=True)
 parallel_kernel = numba.njit(cache=True, fastmath=False, error_model="numpy", nogil=True, parallel=True)
 prange = numba.prange
 

@@ -1,4 +1,5 @@
-"""The substeps of one world's step, read top to bottom, and their batch.
+"""The substeps of a world's step, read top to bottom (``substeps``, for a
+range of worlds one after the other).
 
 Each substep of h = dt / substeps seconds (``engine.step`` prepares the step
 before and finishes it after):
@@ -42,10 +43,16 @@ import numpy as np
 from . import articulated as art
 from . import contacts as con
 from .effects import velocity_effects
-from .integrate import explicit_euler_world, free_positions, runge_kutta4_world, semi_implicit_velocities
-from .jit import kernel
+from .integrate import (
+    explicit_euler_world,
+    free_positions,
+    runge_kutta4_world,
+    semi_implicit_velocities,
+)
+from .jit import inner_kernel, kernel
 from .joint_rows import _add_load_world, _equality_world, _limits_world
-from .joints import _geometry_world, _inertia_world, _passive_world, _warm_start_world as _joint_warm_start
+from .joints import _geometry_world, _inertia_world, _passive_world
+from .joints import _warm_start_world as _joint_warm_start
 from .tree_solve import metric, solve_world
 from .vec import quat_integrate
 
@@ -167,7 +174,7 @@ class StateArrays(NamedTuple):
 # SolverParams, SoftParams) and Jx = (JointStep, JointArrays, TreeRows,
 # TreeLayout, TreeScratch, JointGeometry): tuples built in the world's kernel.
 
-@kernel
+@inner_kernel
 def _contacts_warm_start(Ct, wi, substep, v, w):
     """The contact rows' warm start of world wi: the impulses of the last
     substep summed into the step's (restitution takes them back), then
@@ -187,7 +194,7 @@ def _contacts_warm_start(Ct, wi, substep, v, w):
     con._warm_start_world(R, C.order, C.world_start[wi], C.world_start[wi + 1], v, w)
 
 
-@kernel
+@inner_kernel
 def _contacts_solve(Ct, wi, x, q, v, w, use_bias, only_free):
     """One sweep of world wi's contact rows (``only_free``: those of unjointed
     bodies), then, unless ``only_free``, its articulated rows."""
@@ -199,7 +206,7 @@ def _contacts_solve(Ct, wi, x, q, v, w, use_bias, only_free):
         art._solve_world(view, S, wi, x, q, v, w, ap, use_bias)
 
 
-@kernel
+@inner_kernel
 def _joints_warm_start(Jx, wi, substep, s):
     """The joints' warm start of world wi: the last substep's impulses into
     the step's load (breaking), the load before this substep's solve
@@ -215,7 +222,7 @@ def _joints_warm_start(Jx, wi, substep, s):
                       s.lam_limit[wi], s.v[wi], s.w[wi])
 
 
-@kernel
+@inner_kernel
 def _joints_solve(Jx, wi, s, c, use_bias, factored, unit):
     """One solve of world wi's joints: the equality rows (Gauss-Seidel, then
     the tree) in the biased solve and, with ``relax``, the relax solve; the
@@ -255,7 +262,7 @@ def _joints_solve(Jx, wi, s, c, use_bias, factored, unit):
     return factored
 
 
-@kernel
+@inner_kernel
 def _positions_moved(Jx, wi, s, c, warmed):
     """The bodies moved and turned: world wi's joint geometry, world inverse
     inertias and tree metric at the new positions, with geometric stiffness
@@ -276,121 +283,105 @@ def _positions_moved(Jx, wi, s, c, warmed):
                     dst[i, r, k] = src[i, r, k]
 
 
-@kernel
-def _solve(c, Ct, Jx, wi, s, substep, use_bias, factored, unit):
-    """A biased or relax solve of world wi; returns whether the tree's
-    factors hold the current positions."""
-    if not (c.contacts or c.joints):
-        return factored
-    x, q, v, w = s.x[wi], s.q[wi], s.v[wi], s.w[wi]
-    if use_bias:
-        for part in range(2):
-            if (part == 0) == c.contacts_first:
-                if c.contacts:
-                    _contacts_warm_start(Ct, wi, substep, v, w)
-            elif c.joints:
-                _joints_warm_start(Jx, wi, substep, s)
-    sweeps = c.iterations if use_bias else c.relax_iterations
-    for _ in range(sweeps):
-        for part in range(2):
-            if (part == 0) == c.contacts_first:
-                if c.contacts:
-                    _contacts_solve(Ct, wi, x, q, v, w, use_bias, False)
-            elif c.joints:
-                factored = _joints_solve(Jx, wi, s, c, use_bias, factored, unit)
-    if not use_bias and c.contacts:
-        for _ in range(c.free_relax_passes):
-            _contacts_solve(Ct, wi, x, q, v, w, False, True)
-    return factored
-
-
-# ------------------------------------------------------------------ one world
+# ------------------------------------------------------------------ the worlds
 @kernel
 def substeps(c, C, R, view, AS, p, ap, Jt, J, T, layout, TS, g, bodies, gravitation, springs, motors, damping, s,
-             wi):
-    """Every substep of world wi's step, in place on the state ``s``."""
+             first, stop):
+    """Every substep of the steps of worlds first..stop-1, one world after
+    the other, in place on the state ``s``. Batches run ranges of worlds on
+    several threads (``jit.over_worlds``), not a ``prange``: numba's
+    parallel lowering of a loop whose body takes these many tuples of
+    arrays took longer to compile than every other kernel together. The
+    solve is written once, in a loop over its two phases (biased, relax):
+    numba's compile time grows with each call site and function that passes
+    these arguments on."""
     Ct = (C, R, view, AS, p, ap)
     Jx = (Jt, J, T, layout, TS, g)
     n = s.x.shape[1]
-    x, q, v, w = s.x[wi], s.q[wi], s.v[wi], s.w[wi]
-    sb, broken = s.spring_broken[wi], s.broken[wi]
-    force, torque = np.empty((n, 3)), np.empty((n, 3))
-    lb = np.empty((n, 3))
     nj = Jt.tree_soft.shape[2]
-    unit = np.zeros((3, nj))
+    unit = np.zeros((3, nj))  # the relax solve's softness terms (0, 1, 0)
     for j in range(nj):
         unit[1, j] = 1.0
     rk4 = c.integrator == RK4
     m = n if rk4 else 0
+    force, torque = np.empty((n, 3)), np.empty((n, 3))
+    lb = np.empty((n, 3))
     xs, vs, ws, sx, sv, sw = (np.empty((m, 3)), np.empty((m, 3)), np.empty((m, 3)), np.empty((m, 3)),
                               np.empty((m, 3)), np.empty((m, 3)))
     qs, sq = np.empty((m, 4)), np.empty((m, 4))
     v1, w1 = np.empty((m, 3)), np.empty((m, 3))
-    factored = False
-    for sub in range(c.substeps):
-        if c.joints and Jt.passive:
-            _passive_world(J, Jt.passive_order, Jt.iinv[wi], g, wi, Jt.stiffness, Jt.damping, Jt.rest, broken, w,
-                           c.h)
-        if c.integrator == SYMPLECTIC:
-            semi_implicit_velocities(bodies, gravitation, springs, motors, x, q, v, w, sb, broken, s.cforce[wi],
-                                     s.ctorque[wi], s.motor[wi], force, torque, c.h)
-            if c.effects:
-                velocity_effects(bodies, springs, damping, x, q, v, w, sb, c.h)
-            factored = _solve(c, Ct, Jx, wi, s, sub, True, factored, unit)
-            free_positions(bodies, x, q, v, w, lb, c.h)
-            if c.joints:
-                _positions_moved(Jx, wi, s, c, True)
-                factored = False
-            factored = _solve(c, Ct, Jx, wi, s, sub, False, factored, unit)
-        elif c.integrator == EULER:
-            explicit_euler_world(bodies, gravitation, springs, motors, x, q, v, w, sb, broken, s.cforce[wi],
-                                 s.ctorque[wi], s.motor[wi], force, torque, c.h)
-            if c.joints:
-                _positions_moved(Jx, wi, s, c, sub > 0)
-                factored = False
-            if c.effects:
-                velocity_effects(bodies, springs, damping, x, q, v, w, sb, c.h)
-            factored = _solve(c, Ct, Jx, wi, s, sub, True, factored, unit)
-            factored = _solve(c, Ct, Jx, wi, s, sub, False, factored, unit)
-        else:
-            runge_kutta4_world(bodies, gravitation, springs, motors, x, q, v, w, sb, broken, s.cforce[wi],
-                               s.ctorque[wi], s.motor[wi], force, torque, xs, qs, vs, ws, sx, sq, sv, sw, c.h)
-            if c.joints:
-                _positions_moved(Jx, wi, s, c, sub > 0)
-                factored = False
-            for i in range(n):
-                for k in range(3):
-                    v1[i, k] = v[i, k]
-                    w1[i, k] = w[i, k]
-            if c.effects:
-                velocity_effects(bodies, springs, damping, x, q, v, w, sb, c.h)
-            factored = _solve(c, Ct, Jx, wi, s, sub, True, factored, unit)
-            # Constraint impulses move the positions by h Δv beyond the RK4 flow.
-            for i in range(n):
-                for k in range(3):
-                    x[i, k] = x[i, k] + c.h * (v[i, k] - v1[i, k])
-                qi = quat_integrate((q[i, 0], q[i, 1], q[i, 2], q[i, 3]),
-                                    (w[i, 0] - w1[i, 0], w[i, 1] - w1[i, 1], w[i, 2] - w1[i, 2]), c.h)
-                for k in range(4):
-                    q[i, k] = qi[k]
-            if c.joints:
-                _positions_moved(Jx, wi, s, c, True)
-                factored = False
-            factored = _solve(c, Ct, Jx, wi, s, sub, False, factored, unit)
-
-
-# ------------------------------------------------------------------ batch
-@kernel
-def substeps_worlds(c, C, R, view, AS, p, ap, Jt, J, T, layout, TS, g, bodies, gravitation, springs, motors, damping,
-                    s, first, stop):
-    """``substeps`` of the worlds first..stop-1 in turn: the arguments of
-    ``substeps`` without the world. Batches run ranges of worlds on several
-    threads (``jit.over_worlds``), not a ``prange``: numba's parallel
-    lowering of a loop whose body takes these many-field tuples took longer
-    to compile than every other kernel together."""
     for wi in range(first, stop):
-        substeps(c, C, R, view, AS, p, ap, Jt, J, T, layout, TS, g, bodies, gravitation, springs, motors, damping, s,
-                 wi)
+        x, q, v, w = s.x[wi], s.q[wi], s.v[wi], s.w[wi]
+        sb, broken = s.spring_broken[wi], s.broken[wi]
+        factored = False  # whether the tree's factors hold the current positions
+        for sub in range(c.substeps):
+            if c.joints and Jt.passive:
+                _passive_world(J, Jt.passive_order, Jt.iinv[wi], g, wi, Jt.stiffness, Jt.damping, Jt.rest, broken,
+                               w, c.h)
+            for phase in range(2):
+                use_bias = phase == 0
+                if use_bias:
+                    # The integrator's motion before the biased solve.
+                    if c.integrator == SYMPLECTIC:
+                        semi_implicit_velocities(bodies, gravitation, springs, motors, x, q, v, w, sb, broken,
+                                                 s.cforce[wi], s.ctorque[wi], s.motor[wi], force, torque, c.h)
+                    elif c.integrator == EULER:
+                        explicit_euler_world(bodies, gravitation, springs, motors, x, q, v, w, sb, broken,
+                                             s.cforce[wi], s.ctorque[wi], s.motor[wi], force, torque, c.h)
+                        if c.joints:
+                            _positions_moved(Jx, wi, s, c, sub > 0)
+                            factored = False
+                    else:
+                        runge_kutta4_world(bodies, gravitation, springs, motors, x, q, v, w, sb, broken,
+                                           s.cforce[wi], s.ctorque[wi], s.motor[wi], force, torque, xs, qs, vs, ws,
+                                           sx, sq, sv, sw, c.h)
+                        if c.joints:
+                            _positions_moved(Jx, wi, s, c, sub > 0)
+                            factored = False
+                        for i in range(n):
+                            for k in range(3):
+                                v1[i, k] = v[i, k]
+                                w1[i, k] = w[i, k]
+                    if c.effects:
+                        velocity_effects(bodies, springs, damping, x, q, v, w, sb, c.h)
+                elif c.integrator != EULER:
+                    # The positions between the solves: the symplectic step's, or
+                    # RK4's moved by h Δv of the constraint impulses beyond its flow.
+                    if c.integrator == SYMPLECTIC:
+                        free_positions(bodies, x, q, v, w, lb, c.h)
+                    else:
+                        for i in range(n):
+                            for k in range(3):
+                                x[i, k] = x[i, k] + c.h * (v[i, k] - v1[i, k])
+                            qi = quat_integrate((q[i, 0], q[i, 1], q[i, 2], q[i, 3]),
+                                                (w[i, 0] - w1[i, 0], w[i, 1] - w1[i, 1], w[i, 2] - w1[i, 2]), c.h)
+                            for k in range(4):
+                                q[i, k] = qi[k]
+                    if c.joints:
+                        _positions_moved(Jx, wi, s, c, True)
+                        factored = False
+                if not (c.contacts or c.joints):
+                    continue
+                # The solve: with its bias, each set's warm start, then the sweeps
+                # over the sets in their order; without, the relax sweeps and the
+                # free bodies' extra contact passes.
+                if use_bias:
+                    for part in range(2):
+                        if (part == 0) == c.contacts_first:
+                            if c.contacts:
+                                _contacts_warm_start(Ct, wi, sub, v, w)
+                        elif c.joints:
+                            _joints_warm_start(Jx, wi, sub, s)
+                sweeps = c.iterations if use_bias else c.relax_iterations
+                free_passes = 0 if use_bias or not c.contacts else c.free_relax_passes
+                for it in range(sweeps + free_passes):
+                    only_free = it >= sweeps
+                    for part in range(2):
+                        if (part == 0) == c.contacts_first:
+                            if c.contacts:
+                                _contacts_solve(Ct, wi, x, q, v, w, use_bias, only_free)
+                        elif c.joints and not only_free:
+                            factored = _joints_solve(Jx, wi, s, c, use_bias, factored, unit)
 
 
 # ------------------------------------------------------------------ absent parts

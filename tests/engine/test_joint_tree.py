@@ -12,7 +12,6 @@ import engine as e
 import engine.joint_tree
 from benchmarks.throughput import random_controls
 from engine.humanoid import add_humanoid
-from engine.joint_tree import _TreeSolver
 from engine.math3d import mat_vec
 
 #: Rigid joints with their limits in the tree, enough active-set passes to converge.

@@ -257,4 +257,4 @@ def test_every_scene_kind_runs_one_compiled_substeps_kernel():
     for model in models:
         for num_worlds in (1, W):
             e.step(model, model.initial_state(num_worlds))
-    assert len(world.substeps_worlds.signatures) == 1, world.substeps_worlds.signatures
+    assert len(world.substeps.signatures) == 1, world.substeps.signatures
