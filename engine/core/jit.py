@@ -34,7 +34,9 @@ import numba
 # machine without libgomp falls back to TBB, then to workqueue, instead of
 # failing. Set before any parallel kernel runs, which is when numba loads the
 # layer; an explicit NUMBA_THREADING_LAYER or NUMBA_THREADING_LAYER_PRIORITY is
-# kept.
+# kept. OpenMP's idle workers spin (take set_threads(1) on a machine another
+# process keeps busy); OMP_WAIT_POLICY=PASSIVE makes them sleep, left to the
+# user because libgomp is shared with torch in the same process (README).
 #
 # The fork caveat: GNU OpenMP terminates a fork()ed child that enters a
 # parallel region once its parent has used one. After a batched step
@@ -43,13 +45,6 @@ import numba
 if "NUMBA_THREADING_LAYER" not in os.environ and "NUMBA_THREADING_LAYER_PRIORITY" not in os.environ:
     numba.config.THREADING_LAYER_PRIORITY = ["omp", "tbb", "workqueue"]
     numba.config.THREADING_LAYER = "default"
-# OpenMP's idle workers sleep at once instead of spinning (unless
-# OMP_WAIT_POLICY is set): the substeps run on Python threads between the
-# OpenMP loops, and spinning workers took the cores they needed
-# (docs/decisions.md). Each OpenMP runtime reads it when it loads: numba's at
-# the first parallel kernel, and any loaded later in the process (torch's
-# own copy) sleeps too; one loaded before keeps its policy.
-os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 kernel = numba.njit(cache=True, fastmath=False, error_model="numpy", nogil=True)
 #: ``kernel`` for a helper called only from other kernels: no wrappers for

@@ -164,7 +164,7 @@ def test_set_threads_takes_numpy_integers(restore_threads):
 
 
 PROBE = """
-import json, os, sys, warnings
+import json, sys, warnings
 import numpy as np
 if sys.argv[1] == "no-omp":
     sys.modules["numba.np.ufunc.omppool"] = None  # as on a machine without libgomp: the import fails
@@ -179,14 +179,12 @@ with warnings.catch_warnings():
 model = b.build()
 state = model.initial_state(int(sys.argv[2]))
 engine.step(model, state)
-print(json.dumps({"layer": numba.threading_layer(), "position": state.position.tolist(),
-                  "wait_policy": os.environ.get("OMP_WAIT_POLICY")}))
+print(json.dumps({"layer": numba.threading_layer(), "position": state.position.tolist()}))
 """
 
 
 def _probe(mode, env=None):
-    env = {k: v for k, v in os.environ.items()
-           if not k.startswith("NUMBA_THREADING_LAYER") and k != "OMP_WAIT_POLICY"} | (env or {})
+    env = {k: v for k, v in os.environ.items() if not k.startswith("NUMBA_THREADING_LAYER")} | (env or {})
     out = subprocess.run([sys.executable, "-c", PROBE, mode, str(W)], cwd=REPO, env=env, capture_output=True,
                          text=True, timeout=600)
     assert out.returncode == 0, out.stderr
@@ -214,17 +212,6 @@ def test_the_threading_layer_is_omp_and_falls_back_without_it():
     chosen = _probe("default", {"NUMBA_THREADING_LAYER": "workqueue"})
     assert chosen["layer"] == "workqueue"
     assert default["position"] == fallback["position"] == chosen["position"]
-
-
-def test_openmp_workers_sleep_unless_the_user_chose_a_wait_policy():
-    """Idle OpenMP workers must not spin on the cores the substeps' threads
-    need: engine.core.jit sets OMP_WAIT_POLICY=PASSIVE before the layer
-    loads, keeps a user's choice, and the policy changes no bit."""
-    passive = _probe("default")
-    active = _probe("default", {"OMP_WAIT_POLICY": "ACTIVE"})
-    assert passive["wait_policy"] == "PASSIVE"
-    assert active["wait_policy"] == "ACTIVE"
-    assert passive["position"] == active["position"]
 
 
 def _spawned_step(queue, seed):
