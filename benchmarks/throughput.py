@@ -26,10 +26,9 @@ import os
 import tracemalloc
 import warnings
 
-import numba
 import numpy as np
 
-from engine import Box, Capsule, Control, SceneBuilder, Sphere, get_threads, set_threads, step
+from engine import Box, Capsule, Control, SceneBuilder, Sphere, get_threads, max_threads, set_threads, step
 from engine.core.jit import SERIAL_BELOW
 from engine.humanoid import add_humanoid
 
@@ -38,7 +37,7 @@ from .common import machine_note, measure, positive_float, positive_int, print_t
 DEFAULT_WORLDS = (1, 16, 256, 1024, 4096)
 QUICK_WORLDS = (1, 8)
 #: thread counts of the batched rows: 1 and all cores
-DEFAULT_THREADS = tuple(sorted({1, numba.config.NUMBA_NUM_THREADS}))
+DEFAULT_THREADS = tuple(sorted({1, max_threads()}))
 QUICK_STEPS = 3
 QUICK_REPEATS = 2
 CONTROL_BANK = 8
@@ -510,8 +509,8 @@ def thread_count(text: str) -> int:
         value = int(text)
     except ValueError:
         value = None
-    if value is None or not 1 <= value <= numba.config.NUMBA_NUM_THREADS:
-        raise argparse.ArgumentTypeError(f"must be an integer in 1..{numba.config.NUMBA_NUM_THREADS} "
+    if value is None or not 1 <= value <= max_threads():
+        raise argparse.ArgumentTypeError(f"must be an integer in 1..{max_threads()} "
                                          f"(NUMBA_NUM_THREADS), got {text!r}")
     return value
 

@@ -2,7 +2,7 @@
 from .allocator import keep_freed_memory
 from .builder import WORLD, SceneBuilder, STANDARD_GRAVITY, GRAVITATIONAL_CONSTANT
 from .control import Control, apply_impulse
-from .core.jit import get_threads, set_threads
+from .core.jit import get_threads, max_threads, set_threads
 from .errors import SceneError, SimulationError
 from .materials import Material, MaterialTable
 from .model import Model

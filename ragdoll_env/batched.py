@@ -26,7 +26,6 @@ import math
 import sys
 import warnings
 
-import numba
 import numpy as np
 
 import engine
@@ -359,7 +358,7 @@ def thread_count(threads, processes=None) -> int | None:
     ``NUMBA_NUM_THREADS``, else ValueError naming ``threads``), or the
     deprecated ``processes=P`` mapped to ``min(P, NUMBA_NUM_THREADS)`` with a
     DeprecationWarning."""
-    cores = numba.config.NUMBA_NUM_THREADS
+    cores = engine.max_threads()
     if processes is not None:
         warnings.warn("processes= is deprecated: the worlds step on threads; use threads=", DeprecationWarning,
                       stacklevel=_caller_level())

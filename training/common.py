@@ -287,9 +287,9 @@ def model_choice(text: str) -> str:
 
 def cores() -> int:
     """The threads numba can step the worlds on (``NUMBA_NUM_THREADS``)."""
-    import numba
+    from engine import max_threads
 
-    return int(numba.config.NUMBA_NUM_THREADS)
+    return max_threads()
 
 
 def sim_threads(text: str) -> int:

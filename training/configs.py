@@ -199,9 +199,9 @@ def upgrade(config: dict) -> dict:
     if out.get("threads") is not None:
         raise ValueError(f"give threads only, not also processes, its deprecated alias (threads {out['threads']!r}, "
                          f"processes {value!r})")
-    import numba
+    from engine import max_threads
 
-    out["threads"] = min(value, numba.config.NUMBA_NUM_THREADS)
+    out["threads"] = min(value, max_threads())
     return out
 
 

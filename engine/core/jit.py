@@ -63,6 +63,12 @@ SERIAL_BELOW = 8
 SERIAL_ROWS_BELOW = 1024
 
 
+def max_threads() -> int:
+    """The most threads batched steps can use: numba's ``NUMBA_NUM_THREADS``
+    (all cores unless set in the environment before numba loads)."""
+    return int(numba.config.NUMBA_NUM_THREADS)
+
+
 def set_threads(n: int | None = None) -> int:
     """Use ``n`` threads for batched steps (None: all cores numba sees).
 
@@ -72,9 +78,9 @@ def set_threads(n: int | None = None) -> int:
     Python thread starts with all cores). Returns the count now in use.
     """
     if n is None:
-        n = numba.config.NUMBA_NUM_THREADS
-    if isinstance(n, bool) or not isinstance(n, numbers.Integral) or not 1 <= n <= numba.config.NUMBA_NUM_THREADS:
-        raise ValueError(f"threads must be an integer in 1..{numba.config.NUMBA_NUM_THREADS} "
+        n = max_threads()
+    if isinstance(n, bool) or not isinstance(n, numbers.Integral) or not 1 <= n <= max_threads():
+        raise ValueError(f"threads must be an integer in 1..{max_threads()} "
                          f"(NUMBA_NUM_THREADS), got {n!r}")
     numba.set_num_threads(int(n))
     return int(n)
@@ -104,7 +110,7 @@ def over_worlds(kernel_of_range, args, num_worlds: int) -> None:
     with _pool_lock:
         if _pool is None or _pool_pid != os.getpid():
             # One worker per thread numba may use (set_threads never asks for more).
-            _pool = ThreadPoolExecutor(max_workers=numba.config.NUMBA_NUM_THREADS, thread_name_prefix="ragdoll-worlds")
+            _pool = ThreadPoolExecutor(max_workers=max_threads(), thread_name_prefix="ragdoll-worlds")
             _pool_pid = os.getpid()
         pool = _pool
     bounds = [num_worlds * k // threads for k in range(threads + 1)]
