@@ -178,8 +178,7 @@ def _compiled_substeps(model, state, control, joints, contacts, h, contacts_firs
                             contacts=contacts is not None, joints=joints is not None)
     force, torque, motor = _control_arrays(control, W)
     broken = state.arrays.get("joint_broken")
-    J = 0 if model.joints is None else len(model.joints.names)
-    empty3 = np.zeros((W, J, 3))
+    empty3 = np.zeros((W, 0, 3))  # a state without joints has no joint impulses
     arrays = world.StateArrays(
         x=state.position, q=state.orientation, v=state.velocity, w=state.angular_velocity,
         broken=np.zeros((W, 0), dtype=bool) if broken is None else broken,
