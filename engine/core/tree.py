@@ -302,6 +302,112 @@ def substitute(layout, Dinv, L, R, X):
                 X[j, r, c] = -y[nb + j, r, c]
 
 
+@kernel
+def substitute_one(layout, Dinv, L, r, x):
+    """x = (J M⁻¹ Jᵀ)⁻¹ r of one world for one right-hand side, r and x
+    (nj, 6): ``substitute`` of a single column, the same sums in the same
+    order."""
+    nb = layout.n_bodies
+    n = layout.order.size
+    y = np.zeros((n, 6))
+    for j in range(n - nb):
+        for s in range(6):
+            y[nb + j, s] = r[j, s]
+    for q in range(n):
+        node = layout.order[q]
+        p = layout.parent[node]
+        if p < 0:
+            continue
+        for s in range(6):
+            acc = 0.0
+            for i in range(6):
+                acc += L[node, i, s] * y[node, i]
+            y[p, s] -= acc
+    tmp = np.empty(6)
+    for q in range(n - 1, -1, -1):
+        node = layout.order[q]
+        p = layout.parent[node]
+        for s in range(6):
+            acc = 0.0
+            for i in range(6):
+                acc += Dinv[node, s, i] * y[node, i]
+            if p >= 0:
+                t = 0.0
+                for i in range(6):
+                    t += L[node, s, i] * y[p, i]
+                acc -= t
+            tmp[s] = acc
+        for s in range(6):
+            y[node, s] = tmp[s]
+    for j in range(n - nb):
+        for s in range(6):
+            x[j, s] = -y[nb + j, s]
+
+
+@kernel
+def rows_inverse(layout, row_joint, row_slot, Dinv, L, B):
+    """B (k, k) = (J M⁻¹ Jᵀ)⁻¹ on the k rows (tree joint row_joint[c], slot
+    row_slot[c]), symmetric, from the factors of ``factor``.
+
+    With the factorisation [M Jᵀ; J 0] = F D Fᵀ (F unit block-triangular
+    along the tree: the forward substitution is F⁻¹, the back substitution
+    F⁻ᵀ D⁻¹), the inverse is F⁻ᵀ D⁻¹ F⁻¹, so B_rc = -y_rᵀ D⁻¹ y_c with
+    y_c = F⁻¹ e_c (the sign: x = -z on the joint rows). The forward
+    substitution of a unit row is non-zero only on the path from its joint
+    node to the root, one child a node, so y_c is a walk up that path
+    (y_parent = -L_nodeᵀ y_node) and B_rc a sum over the nodes the two
+    paths share: a few 6-vectors a pair instead of a substitution of k
+    columns over the whole tree."""
+    nb = layout.n_bodies
+    n = layout.order.size
+    k = row_joint.size
+    path = np.empty((k, n), dtype=np.int64)  # the nodes of each row's path, bottom up
+    length = np.empty(k, dtype=np.int64)
+    at = np.full((k, n), -1, dtype=np.int64)  # a node's place on a row's path, -1 off it
+    Y = np.empty((k, n, 6))  # y_c on its path
+    Z = np.empty((k, n, 6))  # D⁻¹ y_c on its path
+    y = np.empty(6)
+    up = np.empty(6)
+    for c in range(k):
+        node = nb + row_joint[c]
+        for s in range(6):
+            y[s] = 0.0
+        y[row_slot[c]] = 1.0
+        m = 0
+        while True:
+            path[c, m] = node
+            at[c, node] = m
+            for s in range(6):
+                Y[c, m, s] = y[s]
+                acc = 0.0
+                for i in range(6):
+                    acc += Dinv[node, s, i] * y[i]
+                Z[c, m, s] = acc
+            m += 1
+            p = layout.parent[node]
+            if p < 0:
+                break
+            for s in range(6):
+                acc = 0.0
+                for i in range(6):
+                    acc += L[node, i, s] * y[i]
+                up[s] = -acc
+            for s in range(6):
+                y[s] = up[s]
+            node = p
+        length[c] = m
+    for c in range(k):
+        for r in range(c, k):
+            acc = 0.0
+            for m in range(length[c]):
+                mr = at[r, path[c, m]]
+                if mr >= 0:
+                    for s in range(6):
+                        acc += Y[r, mr, s] * Z[c, m, s]
+            B[r, c] = -acc
+            B[c, r] = -acc
+
+
 # ------------------------------------------------------------ batches
 @parallel_kernel
 def factor_batch(layout, Ja, Jb, mask, M, M_inv, use_leaf_inv, ball_rows, Dinv, L):

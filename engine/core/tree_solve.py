@@ -43,7 +43,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .jit import SERIAL_BELOW, kernel, parallel_kernel, prange
-from .tree import factor, substitute, sym3_inverse_into
+from .tree import factor, rows_inverse, substitute_one, sym3_inverse_into
 from .vec import (
     add,
     add_scaled,
@@ -486,8 +486,8 @@ def _with_slots(T, on, lrows, mask, Ja, Jb, mask_out):
 
 @kernel
 def _slot_rhs(r, lr, on, rhs):
-    """rhs[:, :, 0] = r with the limit rows' right-hand sides lr where ``on``
-    (nj, 2) in slots 3 (twist) and 4 (swing)."""
+    """rhs = r with the limit rows' right-hand sides lr where ``on`` (nj, 2)
+    in slots 3 (twist) and 4 (swing)."""
     for j in range(r.shape[0]):
         for s in range(6):
             val = r[j, s]
@@ -495,15 +495,7 @@ def _slot_rhs(r, lr, on, rhs):
                 val = lr[j, 0]
             elif s == 4 and on[j, 1]:
                 val = lr[j, 1]
-            rhs[j, s, 0] = val
-
-
-@kernel
-def _first_column(X, out):
-    """out = X[:, :, 0] of a single-column substitution."""
-    for j in range(out.shape[0]):
-        for s in range(6):
-            out[j, s] = X[j, s, 0]
+            rhs[j, s] = val
 
 
 @kernel
@@ -536,32 +528,21 @@ def solve_world(T, layout, fpw, fcw, ra, rb, jt, twist, js, c_swing, twist_defin
         if limits and schur:
             _with_slots(T, exists, lrows, S_mask, S_Ja, S_Jb, mask_f)
             factor(layout, S_Ja, S_Jb, mask_f, M, M_inv, True, False, S_Dinv, S_L)
-            # B = A⁻¹ on the limit rows, column by column.
-            R = np.zeros((nj, 6, k))
-            for c in range(k):
-                R[T.cand_joint[c], 3 + T.cand_slot[c], c] = 1.0
-            X = np.empty((nj, 6, k))
-            substitute(layout, S_Dinv, S_L, R, X)
-            for r in range(k):
-                for c in range(k):
-                    S_B[r, c] = X[T.cand_joint[r], 3 + T.cand_slot[r], c]
+            # B = A⁻¹ on the limit rows.
+            rows_inverse(layout, T.cand_joint, T.cand_slot + 3, S_Dinv, S_L, S_B)
         elif not limits:
             factor(layout, S_Ja, S_Jb, S_mask, M, M_inv, True, True, S_Dinv, S_L)
-    rhs = np.empty((nj, 6, 1))
+    rhs = np.empty((nj, 6))
     r = np.empty((nj, 6))
     right_hand_side(T, S_E, S_mask, fpw, fcw, ra, rb, x, q, v, w, True, use_bias, bias_rate, max_push_out,
                     max_angular_push_out, r)
     lim = np.zeros((nj, 6))
     d = np.zeros((nj, 6))
     imp = np.empty((N, 6))
-    X1 = np.empty((nj, 6, 1))
+    x1 = np.empty((nj, 6))
     xs = np.empty((nj, 6))
     if not limits:
-        for j in range(nj):
-            for s in range(6):
-                rhs[j, s, 0] = r[j, s]
-        substitute(layout, S_Dinv, S_L, rhs, X1)
-        _first_column(X1, xs)
+        substitute_one(layout, S_Dinv, S_L, r, xs)
         _soft_impulses(T, xs, S_mask, lim, False, mass_scale, impulse_scale, lam_lin, lam_ang, d)
         _apply(T, S_Ja, S_Jb, d, iinv, lam_lin, lam_ang, v, w, imp)
         return
@@ -572,8 +553,7 @@ def solve_world(T, layout, fpw, fcw, ra, rb, jt, twist, js, c_swing, twist_defin
     x0 = np.empty((nj, 6))
     if schur:
         _slot_rhs(r, lr, exists, rhs)
-        substitute(layout, S_Dinv, S_L, rhs, X1)
-        _first_column(X1, x0)
+        substitute_one(layout, S_Dinv, S_L, rhs, x0)
     Jaw = np.empty((nj, 6, 6))
     Jbw = np.empty((nj, 6, 6))
     Dinv_w = np.empty(S_Dinv.shape)
@@ -602,14 +582,14 @@ def solve_world(T, layout, fpw, fcw, ra, rb, jt, twist, js, c_swing, twist_defin
                 solve_dense(Bd, delta, nd)
                 for j in range(nj):
                     for s in range(6):
-                        rhs[j, s, 0] = 0.0
+                        rhs[j, s] = 0.0
                 for p in range(nd):
                     cp = drop_idx[p]
-                    rhs[T.cand_joint[cp], 3 + T.cand_slot[cp], 0] = delta[p]
-                substitute(layout, S_Dinv, S_L, rhs, X1)
+                    rhs[T.cand_joint[cp], 3 + T.cand_slot[cp]] = delta[p]
+                substitute_one(layout, S_Dinv, S_L, rhs, x1)
                 for j in range(nj):
                     for s in range(6):
-                        xs[j, s] = x0[j, s] + X1[j, s, 0]
+                        xs[j, s] = x0[j, s] + x1[j, s]
             Ja_use, Jb_use = S_Ja, S_Jb
         else:
             for j in range(nj):
@@ -620,8 +600,7 @@ def solve_world(T, layout, fpw, fcw, ra, rb, jt, twist, js, c_swing, twist_defin
             _with_slots(T, active, lrows, S_mask, Jaw, Jbw, mask_f)
             factor(layout, Jaw, Jbw, mask_f, M, M_inv, True, False, Dinv_w, L_w)
             _slot_rhs(r, lr, active, rhs)
-            substitute(layout, Dinv_w, L_w, rhs, X1)
-            _first_column(X1, xs)
+            substitute_one(layout, Dinv_w, L_w, rhs, xs)
             Ja_use, Jb_use = Jaw, Jbw
         for j in range(nj):
             lim[j, 3] = 1.0 if active[j, 0] else 0.0
