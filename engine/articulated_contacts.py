@@ -10,32 +10,32 @@ the two agree, at the price of anchor error). Here the rows between a static bod
 the joints in the metric:
 
 * Unit impulse on contact column i (point p, direction d ∈ {n, t1, t2}, on
-  body b with lever arm r): J_i = [d, r × d] on b. Unconstrained response
-  U_i = M⁻¹ J_iᵀ (the tree's metric M: masses, world inertias).
-* The tree joints (rows J_t, K = J_t M⁻¹ J_tᵀ, factored by the tree solver)
-  answer with λ = -K⁻¹ J_t U_i, so the constrained response is
-  Z_i = U_i - M⁻¹ J_tᵀ K⁻¹ J_t U_i (the Schur complement of the joints'
-  KKT system: Baraff 1996, "Linear-time dynamics using Lagrange
-  multipliers", section 7; Featherstone 2008, ch. 7's articulated inertia
-  seen at a contact point).
-* The Delassus matrix A = J_c Z (columns x columns per world) couples every
-  point of every row on the articulation: projected Gauss-Seidel on it
-  (``articulated_contact_sweeps`` per solve, two by default, the normal
+  body b with lever arm r): J_i = [d, r × d] on b. With the tree joints'
+  rows J_t and the tree's metric M (masses, world inertias), the
+  constrained response is Z J_iᵀ with
+  Z = M⁻¹ - M⁻¹ J_tᵀ K⁻¹ J_t M⁻¹, K = J_t M⁻¹ J_tᵀ: the body part of the
+  joints' KKT system [M J_tᵀ; J_t 0]⁻¹ (Baraff 1996, "Linear-time dynamics
+  using Lagrange multipliers", section 7; Featherstone 2008, ch. 7's
+  articulated inertia seen at a contact point), whose tree factors give it
+  in one linear-time solve.
+* The Delassus matrix A = J_c Z J_cᵀ (columns x columns per world) couples
+  every point of every row on the articulation: projected Gauss-Seidel on
+  it (``articulated_contact_sweeps`` per solve, two by default, the normal
   columns then the friction pairs, the same soft normal rows and Coulomb
-  disc as ``contact_solver``), then the velocities change by Z Δλ at once:
-  the joints stay satisfied at velocity level, with no joint error for the
-  joint solve to hand back.
+  disc as ``contact_solver``), then the velocities change by Z J_cᵀ Δλ at
+  once: the joints stay satisfied at velocity level, with no joint error
+  for the joint solve to hand back.
 
-Z and A are computed once per step at the step's start positions, as the
-contact rows keep their lever arms for the step. There are three columns
-(normal, two friction directions) per valid contact point, packed world by
-world without padding; the work (Z, A, the sweeps, the restitution) is done
-by the kernels of :mod:`engine.core.articulated`, one world at a time, so a
-world stepped alone is the same world in a batch bit for bit. Memory per
-world with k columns: k x (6 x bodies + 8 + k) floats for Z, J, A and the
-per-column arrays; while Z is built, the tree's substitution holds about
-three k x 6 blocks per tree node. A ragdoll lying on the ground has up to
-about 31 valid points (k = 93).
+The factors and A are computed once per step at the step's start
+positions, as the contact rows keep their lever arms for the step. There
+are three columns (normal, two friction directions) per valid contact
+point, packed world by world without padding; the work (A, the sweeps, the
+restitution) is done by the kernels of :mod:`engine.core.articulated`, one
+world at a time, so a world stepped alone is the same world in a batch bit
+for bit. Memory per held world with k columns and n tree nodes: k x (k + 8)
+floats for A, J and the per-column arrays, 72 n for the factors; while A
+is built, each column's walk up its path holds up to 12 n floats. A ragdoll
+lying on the ground has up to about 31 valid points (k = 93).
 
 Restitution: a point's closing speed just before it first takes load in the
 step is recorded as in ``contact_solver``, and its bounce (``bounce``) raises
@@ -82,24 +82,27 @@ class ArticulatedContacts:
         C = 3 * P
         a_start = np.zeros(W + 1, dtype=np.int64)
         a_start[1:] = np.cumsum((3 * count) ** 2)
-        self.arrays = S = kernels.ArticulatedArrays(
-            held=held, pt_start=pt_start, pt_row=pt_row, pt_slot=slot.astype(np.int64), row_start=row_start,
-            rows=rows_w, tree_bodies=tree.t.bodies, M=np.ascontiguousarray(tree.M),
-            body=np.empty(C, dtype=np.int64), J=np.empty((C, 6)), Z=np.empty((C, 6 * N)),
-            A=np.empty(int(a_start[-1])), a_start=a_start, m=np.empty(C), mu=np.empty(P),
-            finite=np.ones(W, dtype=bool))
-        self.sweeps = int(model.settings.articulated_contact_sweeps)
-        self.contact_view = kernels.ContactView(*(getattr(cr.arrays, f) for f in kernels.ContactView._fields))
         # The tree's row blocks and factors at these positions, of the held worlds.
-        a, b, _, _, _, _, _, Ja, Jb, mask = tree.blocks(js, state, tree)
+        _, _, _, _, _, _, _, Ja, Jb, mask = tree.blocks(js, state, tree)
         Ja, Jb, mask = (np.ascontiguousarray(x, dtype=np.float64) for x in (Ja, Jb, mask))
         if held.size == W:
             Dinv, L = tree._factor(Ja, Jb, mask, tree.M, M_inv=tree.M_inv)
         else:
             Dinv, L = tree._factor(Ja[held], Jb[held], mask[held], tree.M[held], M_inv=tree.M_inv[held])
-        kernels.response(tree.layout, Dinv, L, Ja, Jb, mask, np.ascontiguousarray(a, dtype=np.int64),
-                         np.ascontiguousarray(b, dtype=np.int64), np.ascontiguousarray(tree.iinv, dtype=np.float64),
-                         np.ascontiguousarray(model.inv_mass, dtype=np.float64), cr.arrays, S)
+        factors = np.full(W, -1, dtype=np.int64)
+        factors[held] = np.arange(held.size)
+        node = np.full(N, -1, dtype=np.int64)
+        node[tree.t.bodies] = np.arange(tree.t.bodies.size)
+        self.arrays = S = kernels.ArticulatedArrays(
+            held=held, pt_start=pt_start, pt_row=pt_row, pt_slot=slot.astype(np.int64), row_start=row_start,
+            rows=rows_w, tree_bodies=tree.t.bodies, node=node, order=tree.layout.order, parent=tree.layout.parent,
+            factors=factors, Dinv=np.ascontiguousarray(Dinv), L=np.ascontiguousarray(L),
+            M=np.ascontiguousarray(tree.M), body=np.empty(C, dtype=np.int64), J=np.empty((C, 6)),
+            A=np.empty(int(a_start[-1])), a_start=a_start, m=np.empty(C), mu=np.empty(P),
+            finite=np.ones(W, dtype=bool))
+        self.sweeps = int(model.settings.articulated_contact_sweeps)
+        self.contact_view = kernels.ContactView(*(getattr(cr.arrays, f) for f in kernels.ContactView._fields))
+        kernels.response(cr.arrays, S)
 
     # ------------------------------------------------------------------ views
     def delassus(self, w):
@@ -107,6 +110,20 @@ class ArticulatedContacts:
         S = self.arrays
         k = 3 * int(S.pt_start[w + 1] - S.pt_start[w])
         return S.A[S.a_start[w]:S.a_start[w + 1]].reshape(k, k).T
+
+    def response(self, w):
+        """World w's constrained responses Z J_iᵀ of its columns (k, N, 6):
+        each body's (v, ω) change per N s of impulse on column i (m/s,
+        rad/s), from the solve that applies the impulses."""
+        S = self.arrays
+        cols = self.columns(w)
+        k, N = cols.stop - cols.start, S.node.size
+        out = np.zeros((k, N, 6))
+        for i in range(k):
+            unit = np.zeros(k)
+            unit[i] = 1.0
+            kernels._apply_world(S, w, unit, out[i, :, :3], out[i, :, 3:])
+        return out
 
     def columns(self, w):
         """The slice of world w's columns in the packed arrays (Z, J, body, m)."""
@@ -117,7 +134,7 @@ class ArticulatedContacts:
         """Column velocities (C,) J_c P v after the joint solve that follows:
         P v = v - M⁻¹J_tᵀK⁻¹J_t v, the velocities projected onto the tree
         joints' rows (exact for the relax solve's unbiased rows; the limit
-        rows and the bias are not in P), computed as Zᵀ M v. Read
+        rows and the bias are not in P). Read
         unprojected (J_c v), the columns saw a foot turned freely by its
         ankle motor within the substep, which the joint solve then takes
         back: the standing PD's feet spun at up to 125 rad/s in one of 20
@@ -129,13 +146,13 @@ class ArticulatedContacts:
 
     # ------------------------------------------------------------------ steps
     def warm_start(self, state, cr):
-        """Velocities += Z λ of the rows' stored impulses."""
+        """Velocities += Z J_cᵀ λ of the rows' stored impulses."""
         kernels.warm_start(self.contact_view, self.arrays, state.velocity, state.angular_velocity)
 
     def solve(self, state, cr, h, use_bias):
         """``Settings.articulated_contact_sweeps`` projected Gauss-Seidel sweeps
         over the columns (``contact_solver``'s per-point rules with the
-        effective masses 1 / A_ii), then Z Δλ."""
+        effective masses 1 / A_ii), then Z J_cᵀ Δλ."""
         kernels.solve(self.contact_view, self.arrays, state.position, state.orientation, state.velocity,
                       state.angular_velocity, self.params(cr, h), bool(use_bias))
 

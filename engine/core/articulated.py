@@ -5,29 +5,35 @@ points (``engine.articulated_contacts`` gathers their inputs).
 A world's valid contact points (of rows between a static body and a body
 held by tree joints) each give three columns: the normal n and the tangents
 t1, t2 of its row, on its body b with lever arm r, J_i = [d, r × d]. Per
-world, with the tree's metric M (masses, world inertias), its joint rows J_t
-and K = J_t M⁻¹ J_tᵀ factored by :func:`engine.core.tree.factor`:
+world, with the tree's metric M (masses, world inertias) and its joint rows
+J_t, the KKT system [M J_tᵀ; J_t 0] = F D Fᵀ is factored once per step by
+:func:`engine.core.tree.factor` (Baraff 1996, "Linear-time dynamics using
+Lagrange multipliers"). The constrained response to an impulse f on the
+bodies is the body part of [M J_tᵀ; J_t 0]⁻¹ [f; 0],
 
-* the unconstrained response U_i = M⁻¹ J_iᵀ and the constrained one
-  Z_i = U_i - M⁻¹ J_tᵀ K⁻¹ J_t U_i, K⁻¹ by :func:`engine.core.tree.substitute`
-  for all the world's columns at once (Baraff 1996, "Linear-time dynamics
-  using Lagrange multipliers", section 7: the Schur complement of the joints'
-  KKT system);
-* the Delassus matrix A = J_c Z (columns x columns) and the effective masses
-  m_i = 1 / A_ii (0 where A_ii <= 0);
+    Z f = (M⁻¹ - M⁻¹ J_tᵀ K⁻¹ J_t M⁻¹) f,    K = J_t M⁻¹ J_tᵀ
+
+(section 7: the Schur complement of the joints' KKT system), one tree
+solve (:func:`engine.core.tree.solve_nodes`) for any number of columns:
+
+* the Delassus matrix A = J_c Z J_cᵀ (columns x columns): A_ri =
+  (F⁻¹ e_r)ᵀ D⁻¹ (F⁻¹ e_i), each column's forward substitution a walk up
+  the path from its body to the root (``tree.walk_up``), each pair a sum
+  over the nodes the two paths share; the effective masses m_i = 1 / A_ii
+  (0 where A_ii <= 0);
 * projected Gauss-Seidel sweeps on A (the normal columns, then the friction
   pairs in the Coulomb disc; the soft normal rows of the contact solver,
-  :mod:`engine.core.contacts`), the column velocities u = J_c P v = Zᵀ M v
-  (P v: the velocities projected onto the tree joints' rows) kept up to date
-  column by column, then v += Z Δλ on every body at once.
+  :mod:`engine.core.contacts`), the column velocities u = J_c P v (P v =
+  Z M v: the velocities projected onto the tree joints' rows) kept up to
+  date column by column, then v += Z J_cᵀ Δλ on every body at once.
 
 Layout: the points of all worlds packed world by world (``pt_start``, W + 1),
 each world's points in row then slot order, point p's columns 3p (normal),
-3p + 1, 3p + 2 (friction); Z (columns, N, 6) with one N x 6 block a column;
-A per world column by column (A[a_start[w] + i k + r] = A[r, i], k the
-world's column count), so a sweep's update of u by column i reads it
-contiguously. Every sum runs in an order fixed by the world's own data, so a
-world stepped alone is the same world in a batch bit for bit.
+3p + 1, 3p + 2 (friction); A per world column by column (A[a_start[w] + i k
++ r] = A[r, i], k the world's column count), so a sweep's update of u by
+column i reads it contiguously. Every sum runs in an order fixed by the
+world's own data, so a world stepped alone is the same world in a batch bit
+for bit.
 """
 
 from __future__ import annotations
@@ -39,8 +45,8 @@ import numpy as np
 
 from .contacts import separation
 from .jit import SERIAL_BELOW, kernel, parallel_kernel, prange
-from .tree import substitute
-from .vec import cross, mat3_vec
+from .tree import path_product, solve_nodes, walk_up
+from .vec import cross
 
 
 class ArticulatedArrays(NamedTuple):
@@ -53,11 +59,16 @@ class ArticulatedArrays(NamedTuple):
     pt_slot: np.ndarray  # (P,) int64: its slot (0..3) in the row
     row_start: np.ndarray  # (W + 1,) int64: world w's rows are rows[row_start[w]..row_start[w + 1]]
     rows: np.ndarray  # (rows,) int64: the rows solved here, world by world
-    tree_bodies: np.ndarray  # (nb,) int64: the tree's bodies, in body order
+    tree_bodies: np.ndarray  # (nb,) int64: the tree's bodies, in body order (tree nodes 0..nb-1)
+    node: np.ndarray  # (N,) int64: each body's tree node, -1 off the tree
+    order: np.ndarray  # (n,) int64: the tree's nodes leaves first (``engine.core.tree.TreeLayout``)
+    parent: np.ndarray  # (n,) int64: each node's tree parent, -1 for a root
+    factors: np.ndarray  # (W,) int64: world w's factors are Dinv[factors[w]], L[factors[w]] (-1: none)
+    Dinv: np.ndarray  # (H, n, 6, 6): the factors of [M J_tᵀ; J_t 0] at the step's start, of the held worlds
+    L: np.ndarray  # (H, n, 6, 6)
     M: np.ndarray  # (W, nb, 6, 6): the tree's metric (kg, kg m²) at the step's start
     body: np.ndarray  # (C,) int64: each column's body
     J: np.ndarray  # (C, 6): each column's row of J_c on its body, [d, r × d]
-    Z: np.ndarray  # (C, 6 N): each column's constrained response, body b's (v, ω) at 6b..6b+5 (m/s, rad/s per N s)
     A: np.ndarray  # (Σ k_w²,): each world's Delassus matrix by columns (m/s per N s)
     a_start: np.ndarray  # (W + 1,) int64: world w's A starts at a_start[w]
     m: np.ndarray  # (C,) kg: effective masses 1 / A_ii
@@ -122,21 +133,24 @@ def _minimum(a, b):
 
 # ------------------------------------------------------------------ response (one world)
 @kernel
-def _response_world(layout, Dinv, L, Ja, Jb, mask, ja, jb, iinv, inv_mass, R, S, w):
-    """Z, A, m and the finite flag of world w (``ArticulatedArrays``), from the
-    tree's factors Dinv, L (nodes, 6, 6) and row blocks Ja, Jb (nj, 6, 6) on
-    the joints' sides ja, jb (bodies), mask (nj, 6), the world inverse
-    inertias iinv (N, 3, 3) and the inverse masses (N,); R: the step's
-    ``ContactRowArrays``."""
+def _response_world(R, S, w):
+    """J, body, A, m and the finite flag of world w (``ArticulatedArrays``),
+    from the step's ``ContactRowArrays`` R and the world's tree factors."""
     p0, p1 = S.pt_start[w], S.pt_start[w + 1]
     lo = 3 * p0
     k = 3 * (p1 - p0)
-    N = inv_mass.size
-    nj = ja.size
     if k == 0:
         return
-    # The columns' J and U = M⁻¹ Jᵀ on their bodies (k, 6).
-    U = np.empty((k, 6))
+    f = S.factors[w]
+    Dinv, L = S.Dinv[f], S.L[f]
+    n = S.order.size
+    # The columns' J on their bodies, each walked up its body's path: F⁻¹ J_iᵀ and D⁻¹ F⁻¹ J_iᵀ.
+    path = np.empty((k, n), dtype=np.int64)
+    length = np.empty(k, dtype=np.int64)
+    at = np.full((k, n), -1, dtype=np.int64)
+    Y = np.empty((k, n, 6))
+    Zp = np.empty((k, n, 6))
+    y = np.empty(6)
     for p in range(p0, p1):
         r, s = S.pt_row[p], S.pt_slot[p]
         lever = (R.rb[r, s, 0], R.rb[r, s, 1], R.rb[r, s, 2])
@@ -153,145 +167,87 @@ def _response_world(layout, Dinv, L, Ja, Jb, mask, ja, jb, iinv, inv_mass, R, S,
             S.body[c] = b
             S.J[c, 0], S.J[c, 1], S.J[c, 2] = d
             S.J[c, 3], S.J[c, 4], S.J[c, 5] = t
-            im = inv_mass[b]
-            wt = mat3_vec(iinv, b, t)
-            i = c - lo
-            U[i, 0], U[i, 1], U[i, 2] = d[0] * im, d[1] * im, d[2] * im
-            U[i, 3], U[i, 4], U[i, 5] = wt
-    # The joints' rows J_t U (nj, 6, k): a column moves its one body only.
-    B = np.empty((nj, 6, k))
-    for j in range(nj):
-        for r in range(6):
-            for i in range(k):
-                bc = S.body[lo + i]
-                sa = 0.0
-                if ja[j] == bc:
-                    for x in range(6):
-                        sa += Ja[j, r, x] * U[i, x]
-                sb = 0.0
-                if jb[j] == bc:
-                    for x in range(6):
-                        sb += Jb[j, r, x] * U[i, x]
-                B[j, r, i] = (sa + sb) * mask[j, r]
-    X = np.empty((nj, 6, k))
-    substitute(layout, Dinv, L, B, X)  # K⁻¹ J_t U
-    # F = J_tᵀ K⁻¹ J_t U per body (N, 6, k): the sides a in joint order, then the sides b.
-    F = np.zeros((N, 6, k))
-    acc = np.empty(k)
-    for side in range(2):
-        for j in range(nj):
-            body = ja[j] if side == 0 else jb[j]
-            Js = Ja[j] if side == 0 else Jb[j]
             for x in range(6):
-                # (J_sᵀ X)[x, i] = Σ_r J_s[r, x] X[r, i], r in order, for all i at once.
-                acc[:] = 0.0
-                for r in range(6):
-                    f = Js[r, x]
-                    for i in range(k):
-                        acc[i] += f * X[j, r, i]
-                for i in range(k):
-                    F[body, x, i] += acc[i]
-    # Z = U - M⁻¹ F.
-    for i in range(k):
-        c = lo + i
-        bc = S.body[c]
-        for b in range(N):
-            im = inv_mass[b]
-            for x in range(3):
-                u = U[i, x] if b == bc else 0.0
-                S.Z[c, 6 * b + x] = u - F[b, x, i] * im
-            f = (F[b, 3, i], F[b, 4, i], F[b, 5, i])
-            g = mat3_vec(iinv, b, f)
-            for x in range(3):
-                u = U[i, 3 + x] if b == bc else 0.0
-                S.Z[c, 6 * b + 3 + x] = u - g[x]
-    # A[r, i] = Σ_d J[r, d] Z[i, body_r, d], column by column; m = 1 / A_ii.
+                y[x] = S.J[c, x]
+            i = c - lo
+            length[i] = walk_up(S.parent, Dinv, L, S.node[b], y, path[i], at[i], Y[i], Zp[i])
+    # A[r, i] = J_r Z J_iᵀ, symmetric; m = 1 / A_ii.
     a0 = S.a_start[w]
     finite = True
     for i in range(k):
-        ci = lo + i
-        base = a0 + i * k
-        for r in range(k):
-            cr = lo + r
-            br = S.body[cr]
-            s = 0.0
-            for d in range(6):
-                s += S.Z[ci, 6 * br + d] * S.J[cr, d]
-            S.A[base + r] = s
-            if not math.isfinite(s):
+        for r in range(i, k):
+            v = path_product(path[i], length[i], Zp[i], at[r], Y[r])
+            S.A[a0 + i * k + r] = v
+            S.A[a0 + r * k + i] = v
+            if not math.isfinite(v):
                 finite = False
-        diag = S.A[base + i]
-        S.m[ci] = 1.0 / diag if diag > 0.0 else 0.0
+        diag = S.A[a0 + i * k + i]
+        S.m[lo + i] = 1.0 / diag if diag > 0.0 else 0.0
     S.finite[w] = finite
     for p in range(p0, p1):
         S.mu[p] = R.mu[S.pt_row[p], S.pt_slot[p]]
 
 
 @parallel_kernel
-def response(layout, Dinv, L, Ja, Jb, mask, ja, jb, iinv, inv_mass, R, S):
-    """``_response_world`` of every world in S.held; Dinv, L (H, nodes, 6, 6)
-    of the held worlds in order, Ja, Jb (W, nj, 6, 6), mask (W, nj, 6) and
-    iinv (W, N, 3, 3) of the batch."""
+def response(R, S):
+    """``_response_world`` of every world in S.held."""
     H = S.held.size
     if H < SERIAL_BELOW:
         for q in range(H):
-            w = S.held[q]
-            _response_world(layout, Dinv[q], L[q], Ja[w], Jb[w], mask[w], ja, jb, iinv[w], inv_mass, R, S, w)
+            _response_world(R, S, S.held[q])
     else:
         for q in prange(H):
-            _response_world(layout, Dinv[q], L[q], Ja[S.held[q]], Jb[S.held[q]], mask[S.held[q]], ja, jb,
-                            iinv[S.held[q]], inv_mass, R, S, S.held[q])
+            _response_world(R, S, S.held[q])
 
 
 # ------------------------------------------------------------------ velocities (one world)
 @kernel
 def _column_velocities(S, w, vel, angvel, u):
-    """u = Zᵀ M v (k,) of world w: J_c P v, the column velocities after the
-    joint solve's projection P v = v - M⁻¹J_tᵀK⁻¹J_t v (as Z = P M⁻¹J_cᵀ and
-    M⁻¹PᵀM = P). vel, angvel: the world's (N, 3). Each column a dot product
-    with the momenta over the tree bodies' six rows in order."""
+    """u = J_c P v (k,) of world w: the column velocities after the joint
+    solve's projection P v = Z M v = v - M⁻¹J_tᵀK⁻¹J_t v, one tree solve.
+    vel, angvel: the world's (N, 3)."""
     lo, hi = 3 * S.pt_start[w], 3 * S.pt_start[w + 1]
     tb = S.tree_bodies
-    nb = tb.size
     M = S.M[w]
-    mom = np.empty((nb, 6))
-    for q in range(nb):
+    f = S.factors[w]
+    y = np.zeros((S.order.size, 6))
+    for q in range(tb.size):
         b = tb[q]
         v = (vel[b, 0], vel[b, 1], vel[b, 2], angvel[b, 0], angvel[b, 1], angvel[b, 2])
         for r in range(6):
-            s = 0.0
+            acc = 0.0
             for x in range(6):
-                s += M[q, r, x] * v[x]
-            mom[q, r] = s
-    # Each column's sum over the tree bodies' rows in order, all columns at once.
-    for c in range(hi - lo):
-        u[c] = 0.0
-    for q in range(nb):
-        col = 6 * tb[q]
+                acc += M[q, r, x] * v[x]
+            y[q, r] = acc
+    solve_nodes(S.order, S.parent, S.Dinv[f], S.L[f], y)
+    for c in range(lo, hi):
+        q = S.node[S.body[c]]
+        acc = 0.0
         for x in range(6):
-            f = mom[q, x]
-            for c in range(lo, hi):
-                u[c - lo] += f * S.Z[c, col + x]
+            acc += S.J[c, x] * y[q, x]
+        u[c - lo] = acc
 
 
 @kernel
 def _apply_world(S, w, dlam, vel, angvel):
-    """v += Z Δλ on every body of world w, each body row summed over the
-    columns in order; dlam (k,)."""
+    """v += Z J_cᵀ Δλ on the tree bodies of world w, one tree solve; dlam (k,)."""
     lo, hi = 3 * S.pt_start[w], 3 * S.pt_start[w + 1]
-    N = vel.shape[0]
     if hi == lo:
         return
-    # Each body row summed over the columns in order, all rows at once.
-    dv = np.zeros(6 * N)
+    tb = S.tree_bodies
+    f = S.factors[w]
+    y = np.zeros((S.order.size, 6))
     for c in range(lo, hi):
-        f = dlam[c - lo]
-        for q in range(6 * N):
-            dv[q] += S.Z[c, q] * f
-    for b in range(N):
+        q = S.node[S.body[c]]
+        g = dlam[c - lo]
+        for x in range(6):
+            y[q, x] += S.J[c, x] * g
+    solve_nodes(S.order, S.parent, S.Dinv[f], S.L[f], y)
+    for q in range(tb.size):
+        b = tb[q]
         for x in range(3):
-            vel[b, x] += dv[6 * b + x]
-            angvel[b, x] += dv[6 * b + 3 + x]
+            vel[b, x] += y[q, x]
+            angvel[b, x] += y[q, 3 + x]
 
 
 @kernel
@@ -332,7 +288,7 @@ def _scatter(R, S, w, lam):
 # ------------------------------------------------------------------ warm start (one world)
 @kernel
 def _warm_start_world(R, S, w, vel, angvel):
-    """v += Z λ of the stored impulses, if any is non-zero."""
+    """v += Z J_cᵀ λ of the stored impulses, if any is non-zero."""
     k = 3 * (S.pt_start[w + 1] - S.pt_start[w])
     lam = np.empty(k)
     _gather(R, S, w, lam)
@@ -407,7 +363,7 @@ def _sweep(S, w, u, lam, sweep_start, gain, bias, isc, soft, u_before):
 def _solve_world(R, S, w, pos, ori, vel, angvel, prm, use_bias):
     """``SoftParams.sweeps`` sweeps of world w (``_sweep``), each point's
     closing speed and gap recorded just before it first takes load (for
-    restitution), then v += Z Δλ and the impulses back to the rows. The
+    restitution), then v += Z J_cᵀ Δλ and the impulses back to the rows. The
     normal columns' bias and gain: an open point (s > 0) is speculative
     (bias s/h, gain -m); a penetrating one soft in the biased solve (bias
     rate·min(s + slop, 0) capped at -max_push_out, gain -m·mass_scale,
@@ -492,7 +448,7 @@ def _bounce_world(R, S, w, vel, angvel, bounce, target):
     """The points of world w marked in ``bounce`` (rows, 4): their normal
     impulses grow (λ_n >= 0) until each one's separating speed is its
     ``target`` (m/s), in one sweep over the normal columns with the coupling
-    A, then v += Z Δλ. A world without a marked point is left as it is."""
+    A, then v += Z J_cᵀ Δλ. A world without a marked point is left as it is."""
     p0, p1 = S.pt_start[w], S.pt_start[w + 1]
     n = p1 - p0
     k = 3 * n
@@ -541,7 +497,7 @@ def bounce(R, S, vel, angvel, marked, target):
 
 @parallel_kernel
 def column_velocities(S, vel, angvel, u):
-    """u (C,) = Zᵀ M v of every held world's columns (``_column_velocities``)."""
+    """u (C,) = J_c P v of every held world's columns (``_column_velocities``)."""
     H = S.held.size
     if H < SERIAL_BELOW:
         for q in range(H):

@@ -303,21 +303,19 @@ def substitute(layout, Dinv, L, R, X):
 
 
 @kernel
-def substitute_one(layout, Dinv, L, r, x):
-    """x = (J M⁻¹ Jᵀ)⁻¹ r of one world for one right-hand side, r and x
-    (nj, 6): ``substitute`` of a single column, the same sums in the same
-    order."""
-    nb = layout.n_bodies
-    n = layout.order.size
-    y = np.zeros((n, 6))
-    for j in range(n - nb):
-        for s in range(6):
-            y[nb + j, s] = r[j, s]
+def solve_nodes(order, parent, Dinv, L, y):
+    """y (n, 6) = [M Jᵀ; J 0]⁻¹ y of one world in place, a right-hand side on
+    every node (bodies: forces, N s; joints: rows), through the factors of
+    ``factor`` (order, parent: the layout's): the forward substitution leaves
+    first, the back substitution roots first. Bodies get the constrained
+    velocities, joints -z. Each entry a 6-term sum in order."""
+    n = order.size
     for q in range(n):
-        node = layout.order[q]
-        p = layout.parent[node]
+        node = order[q]
+        p = parent[node]
         if p < 0:
             continue
+        # y_parent -= L_nodeᵀ y_node (children in node order, as they come leaves first).
         for s in range(6):
             acc = 0.0
             for i in range(6):
@@ -325,8 +323,9 @@ def substitute_one(layout, Dinv, L, r, x):
             y[p, s] -= acc
     tmp = np.empty(6)
     for q in range(n - 1, -1, -1):
-        node = layout.order[q]
-        p = layout.parent[node]
+        node = order[q]
+        p = parent[node]
+        # x_node = D⁻¹ y_node - L_node x_parent (the parent's x is in y already).
         for s in range(6):
             acc = 0.0
             for i in range(6):
@@ -339,73 +338,101 @@ def substitute_one(layout, Dinv, L, r, x):
             tmp[s] = acc
         for s in range(6):
             y[node, s] = tmp[s]
+
+
+@kernel
+def substitute_one(layout, Dinv, L, r, x):
+    """x = (J M⁻¹ Jᵀ)⁻¹ r of one world for one right-hand side, r and x
+    (nj, 6): ``substitute`` of a single column, the same sums in the same
+    order."""
+    nb = layout.n_bodies
+    n = layout.order.size
+    y = np.zeros((n, 6))
+    for j in range(n - nb):
+        for s in range(6):
+            y[nb + j, s] = r[j, s]
+    solve_nodes(layout.order, layout.parent, Dinv, L, y)
     for j in range(n - nb):
         for s in range(6):
             x[j, s] = -y[nb + j, s]
 
 
 @kernel
+def walk_up(parent, Dinv, L, node, y, path, at, Y, Z):
+    """The forward substitution F⁻¹ e of a right-hand side y (6,) on one
+    node, for the factors of ``factor`` ([M Jᵀ; J 0] = F D Fᵀ, F unit
+    block-triangular along the tree): non-zero only on the path from the
+    node to its root, one child a node, so a walk up the path
+    (y_parent = -L_nodeᵀ y_node). The path's nodes go to ``path`` (n,),
+    each node's place on it to ``at`` (n,) (the others left as they are),
+    F⁻¹ e and D⁻¹ F⁻¹ e on it to Y and Z (n, 6); y is overwritten. Returns
+    the path's length."""
+    up = np.empty(6)
+    m = 0
+    while True:
+        path[m] = node
+        at[node] = m
+        for s in range(6):
+            Y[m, s] = y[s]
+            acc = 0.0
+            for i in range(6):
+                acc += Dinv[node, s, i] * y[i]
+            Z[m, s] = acc
+        m += 1
+        p = parent[node]
+        if p < 0:
+            return m
+        for s in range(6):
+            acc = 0.0
+            for i in range(6):
+                acc += L[node, i, s] * y[i]
+            up[s] = -acc
+        for s in range(6):
+            y[s] = up[s]
+        node = p
+
+
+@kernel
+def path_product(path_c, length_c, Z_c, at_r, Y_r):
+    """eᵣᵀ [M Jᵀ; J 0]⁻¹ e_c = (F⁻¹ e_r)ᵀ D⁻¹ (F⁻¹ e_c) (the inverse is
+    F⁻ᵀ D⁻¹ F⁻¹) from two walks of ``walk_up``: a sum over the nodes the two
+    paths share, c's path bottom up."""
+    acc = 0.0
+    for m in range(length_c):
+        mr = at_r[path_c[m]]
+        if mr >= 0:
+            for s in range(6):
+                acc += Y_r[mr, s] * Z_c[m, s]
+    return acc
+
+
+@kernel
 def rows_inverse(layout, row_joint, row_slot, Dinv, L, B):
     """B (k, k) = (J M⁻¹ Jᵀ)⁻¹ on the k rows (tree joint row_joint[c], slot
-    row_slot[c]), symmetric, from the factors of ``factor``.
-
-    With the factorisation [M Jᵀ; J 0] = F D Fᵀ (F unit block-triangular
-    along the tree: the forward substitution is F⁻¹, the back substitution
-    F⁻ᵀ D⁻¹), the inverse is F⁻ᵀ D⁻¹ F⁻¹, so B_rc = -y_rᵀ D⁻¹ y_c with
-    y_c = F⁻¹ e_c (the sign: x = -z on the joint rows). The forward
-    substitution of a unit row is non-zero only on the path from its joint
-    node to the root, one child a node, so y_c is a walk up that path
-    (y_parent = -L_nodeᵀ y_node) and B_rc a sum over the nodes the two
-    paths share: a few 6-vectors a pair instead of a substitution of k
-    columns over the whole tree."""
+    row_slot[c]), symmetric, from the factors of ``factor``: B_rc =
+    -(F⁻¹ e_r)ᵀ D⁻¹ (F⁻¹ e_c) (the sign: x = -z on the joint rows), each
+    unit row walked up its path (``walk_up``), each pair summed over the
+    nodes the paths share (``path_product``): a few 6-vectors a pair instead
+    of a substitution of k columns over the whole tree."""
     nb = layout.n_bodies
     n = layout.order.size
     k = row_joint.size
-    path = np.empty((k, n), dtype=np.int64)  # the nodes of each row's path, bottom up
+    path = np.empty((k, n), dtype=np.int64)
     length = np.empty(k, dtype=np.int64)
-    at = np.full((k, n), -1, dtype=np.int64)  # a node's place on a row's path, -1 off it
-    Y = np.empty((k, n, 6))  # y_c on its path
-    Z = np.empty((k, n, 6))  # D⁻¹ y_c on its path
+    at = np.full((k, n), -1, dtype=np.int64)
+    Y = np.empty((k, n, 6))
+    Z = np.empty((k, n, 6))
     y = np.empty(6)
-    up = np.empty(6)
     for c in range(k):
-        node = nb + row_joint[c]
         for s in range(6):
             y[s] = 0.0
         y[row_slot[c]] = 1.0
-        m = 0
-        while True:
-            path[c, m] = node
-            at[c, node] = m
-            for s in range(6):
-                Y[c, m, s] = y[s]
-                acc = 0.0
-                for i in range(6):
-                    acc += Dinv[node, s, i] * y[i]
-                Z[c, m, s] = acc
-            m += 1
-            p = layout.parent[node]
-            if p < 0:
-                break
-            for s in range(6):
-                acc = 0.0
-                for i in range(6):
-                    acc += L[node, i, s] * y[i]
-                up[s] = -acc
-            for s in range(6):
-                y[s] = up[s]
-            node = p
-        length[c] = m
+        length[c] = walk_up(layout.parent, Dinv, L, nb + row_joint[c], y, path[c], at[c], Y[c], Z[c])
     for c in range(k):
         for r in range(c, k):
-            acc = 0.0
-            for m in range(length[c]):
-                mr = at[r, path[c, m]]
-                if mr >= 0:
-                    for s in range(6):
-                        acc += Y[r, mr, s] * Z[c, m, s]
-            B[r, c] = -acc
-            B[c, r] = -acc
+            v = -path_product(path[c], length[c], Z[c], at[r], Y[r])
+            B[r, c] = v
+            B[c, r] = v
 
 
 # ------------------------------------------------------------ batches

@@ -404,8 +404,10 @@ def no_articulated(contact_rows):
     S = art.ArticulatedArrays(
         held=z(0, dtype=np.int64), pt_start=z(1, dtype=np.int64), pt_row=z(0, dtype=np.int64),
         pt_slot=z(0, dtype=np.int64), row_start=z(1, dtype=np.int64), rows=z(0, dtype=np.int64),
-        tree_bodies=z(0, dtype=np.int64), M=z((0, 0, 6, 6)), body=z(0, dtype=np.int64), J=z((0, 6)),
-        Z=z((0, 0)), A=z(0), a_start=z(1, dtype=np.int64), m=z(0), mu=z(0), finite=z(0, dtype=bool))
+        tree_bodies=z(0, dtype=np.int64), node=z(0, dtype=np.int64), order=z(0, dtype=np.int64),
+        parent=z(0, dtype=np.int64), factors=z(0, dtype=np.int64), Dinv=z((0, 0, 6, 6)), L=z((0, 0, 6, 6)),
+        M=z((0, 0, 6, 6)), body=z(0, dtype=np.int64), J=z((0, 6)), A=z(0), a_start=z(1, dtype=np.int64), m=z(0),
+        mu=z(0), finite=z(0, dtype=bool))
     view = art.ContactView(*(getattr(contact_rows, f) for f in art.ContactView._fields))
     ap = art.SoftParams(h=0.0, bias_rate=0.0, mass_scale=1.0, impulse_scale=0.0, slop=0.0, max_push_out=0.0,
                         thesis=False, sweeps=0)

@@ -56,7 +56,7 @@ def test_response_keeps_every_joint_and_gives_a_delassus_matrix():
     tree = joints.tree
     a, b, _, _, _, _, _, Ja, Jb, mask = tree.blocks(joints, state, tree)
     S = art.arrays
-    Z = S.Z.reshape(-1, model.num_bodies, 6).transpose(1, 2, 0)[None]  # (1, N, 6, columns)
+    Z = art.response(0).transpose(1, 2, 0)[None]  # (1, N, 6, columns)
     joint_rows = (np.matmul(Ja, Z[:, a]) + np.matmul(Jb, Z[:, b])) * mask[..., None]
     assert np.abs(joint_rows).max() <= 1e-9 * np.abs(Z).max()
     A = art.delassus(0)
@@ -181,8 +181,10 @@ def _sweeps(worlds, mu=0.6):
     S = kernels.ArticulatedArrays(
         held=np.arange(W), pt_start=pt_start, pt_row=np.zeros(P, dtype=np.int64),
         pt_slot=np.zeros(P, dtype=np.int64), row_start=np.zeros(W + 1, dtype=np.int64),
-        rows=np.zeros(0, dtype=np.int64), tree_bodies=np.zeros(0, dtype=np.int64), M=np.zeros((W, 0, 6, 6)),
-        body=np.zeros(C, dtype=np.int64), J=np.zeros((C, 6)), Z=np.zeros((C, 0)),
+        rows=np.zeros(0, dtype=np.int64), tree_bodies=np.zeros(0, dtype=np.int64), node=np.zeros(0, dtype=np.int64),
+        order=np.zeros(0, dtype=np.int64), parent=np.zeros(0, dtype=np.int64), factors=np.zeros(W, dtype=np.int64),
+        Dinv=np.zeros((0, 0, 6, 6)), L=np.zeros((0, 0, 6, 6)), M=np.zeros((W, 0, 6, 6)),
+        body=np.zeros(C, dtype=np.int64), J=np.zeros((C, 6)),
         A=np.concatenate([A.T.ravel() for A, *_ in worlds]), a_start=np.r_[0, np.cumsum(k * k)].astype(np.int64),
         m=np.concatenate([np.where(np.isfinite(g), -g, 0.0) for _, _, _, g, _, _ in worlds]),
         mu=np.full(P, mu), finite=np.array([bool(np.isfinite(A).all()) for A, *_ in worlds]))
@@ -389,10 +391,10 @@ def test_more_sweeps_converge_on_the_soft_contacts_of_a_resting_chain():
 
 
 def test_response_matches_dense_linear_algebra_and_a_world_alone_the_batch():
-    """Z and A of the kernels against the textbook formulas in dense linear
-    algebra, per world: Z = M⁻¹J_cᵀ - M⁻¹J_tᵀ (J_t M⁻¹ J_tᵀ)⁻¹ J_t M⁻¹J_cᵀ,
-    A = J_c Z, m = 1 / A_ii (to rounding: the kernels substitute through the
-    tree's block factors), on three hinged boxes in three worlds with uneven
+    """The responses and A of the kernels against the textbook formulas in
+    dense linear algebra, per world: Z = M⁻¹J_cᵀ - M⁻¹J_tᵀ (J_t M⁻¹ J_tᵀ)⁻¹
+    J_t M⁻¹J_cᵀ, A = J_c Z, m = 1 / A_ii (to rounding: the kernels solve
+    through the tree's block factors), on three hinged boxes in three worlds with uneven
     contacts; and each world's Z, A and m computed alone equal the batch's
     bit for bit."""
     model = scenarios.hinged_boxes(masses=(1.0, 2.0, 3.0), articulated_contacts=True, **RIGID).build()
@@ -428,7 +430,7 @@ def test_response_matches_dense_linear_algebra_and_a_world_alone_the_batch():
         U = np.linalg.solve(M, J_c.T)
         MJt = np.linalg.solve(M, J_t.T)
         Z = U - MJt @ np.linalg.solve(J_t @ MJt, J_t @ U)
-        got = S.Z[c]
+        got = art.response(w).reshape(c.stop - c.start, 6 * N)
         assert np.abs(got[:, cols] - Z.T).max() <= 1e-12 * np.abs(Z).max()
         assert not np.delete(got, cols, axis=1).any()  # the ground does not move
         A = J_c @ Z
@@ -440,7 +442,7 @@ def test_response_matches_dense_linear_algebra_and_a_world_alone_the_batch():
             alone.arrays[key][0] = state.arrays[key][w]
         _, _, art1 = _prepared(model, alone)
         S1 = art1.arrays
-        assert S1.Z.tobytes() == got.tobytes()
+        assert art1.response(0).tobytes() == art.response(w).tobytes()
         assert art1.delassus(0).tobytes() == art.delassus(w).tobytes()
         assert S1.m.tobytes() == S.m[c].tobytes()
         checked += 1
