@@ -170,13 +170,13 @@ def _response_world(R, S, w):
             for x in range(6):
                 y[x] = S.J[c, x]
             i = c - lo
-            length[i] = walk_up(S.parent, Dinv, L, S.node[b], y, path[i], at[i], Y[i], Zp[i])
+            length[i] = walk_up(S.parent, Dinv, L, S.node[b], y, path, at, Y, Zp, i)
     # A[r, i] = J_r Z J_iᵀ, symmetric; m = 1 / A_ii.
     a0 = S.a_start[w]
     finite = True
     for i in range(k):
         for r in range(i, k):
-            v = path_product(path[i], length[i], Zp[i], at[r], Y[r])
+            v = path_product(path, length, Zp, at, Y, i, r)
             S.A[a0 + i * k + r] = v
             S.A[a0 + r * k + i] = v
             if not math.isfinite(v):

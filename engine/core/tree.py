@@ -358,26 +358,27 @@ def substitute_one(layout, Dinv, L, r, x):
 
 
 @kernel
-def walk_up(parent, Dinv, L, node, y, path, at, Y, Z):
+def walk_up(parent, Dinv, L, node, y, path, at, Y, Z, c):
     """The forward substitution F⁻¹ e of a right-hand side y (6,) on one
     node, for the factors of ``factor`` ([M Jᵀ; J 0] = F D Fᵀ, F unit
     block-triangular along the tree): non-zero only on the path from the
     node to its root, one child a node, so a walk up the path
-    (y_parent = -L_nodeᵀ y_node). The path's nodes go to ``path`` (n,),
-    each node's place on it to ``at`` (n,) (the others left as they are),
-    F⁻¹ e and D⁻¹ F⁻¹ e on it to Y and Z (n, 6); y is overwritten. Returns
-    the path's length."""
+    (y_parent = -L_nodeᵀ y_node). Walk c's: the path's nodes go to
+    ``path[c]`` (n,), each node's place on it to ``at[c]`` (n,) (the others
+    left as they are), F⁻¹ e and D⁻¹ F⁻¹ e on it to Y[c] and Z[c] (n, 6); y
+    is overwritten. Returns the path's length. (Rows are indexed in place,
+    not taken as views: a view costs two atomic reference counts.)"""
     up = np.empty(6)
     m = 0
     while True:
-        path[m] = node
-        at[node] = m
+        path[c, m] = node
+        at[c, node] = m
         for s in range(6):
-            Y[m, s] = y[s]
+            Y[c, m, s] = y[s]
             acc = 0.0
             for i in range(6):
                 acc += Dinv[node, s, i] * y[i]
-            Z[m, s] = acc
+            Z[c, m, s] = acc
         m += 1
         p = parent[node]
         if p < 0:
@@ -393,16 +394,16 @@ def walk_up(parent, Dinv, L, node, y, path, at, Y, Z):
 
 
 @kernel
-def path_product(path_c, length_c, Z_c, at_r, Y_r):
+def path_product(path, length, Z, at, Y, c, r):
     """eᵣᵀ [M Jᵀ; J 0]⁻¹ e_c = (F⁻¹ e_r)ᵀ D⁻¹ (F⁻¹ e_c) (the inverse is
-    F⁻ᵀ D⁻¹ F⁻¹) from two walks of ``walk_up``: a sum over the nodes the two
-    paths share, c's path bottom up."""
+    F⁻ᵀ D⁻¹ F⁻¹) from the walks c and r of ``walk_up``: a sum over the
+    nodes the two paths share, c's path bottom up."""
     acc = 0.0
-    for m in range(length_c):
-        mr = at_r[path_c[m]]
+    for m in range(length[c]):
+        mr = at[r, path[c, m]]
         if mr >= 0:
             for s in range(6):
-                acc += Y_r[mr, s] * Z_c[m, s]
+                acc += Y[r, mr, s] * Z[c, m, s]
     return acc
 
 
@@ -427,10 +428,10 @@ def rows_inverse(layout, row_joint, row_slot, Dinv, L, B):
         for s in range(6):
             y[s] = 0.0
         y[row_slot[c]] = 1.0
-        length[c] = walk_up(layout.parent, Dinv, L, nb + row_joint[c], y, path[c], at[c], Y[c], Z[c])
+        length[c] = walk_up(layout.parent, Dinv, L, nb + row_joint[c], y, path, at, Y, Z, c)
     for c in range(k):
         for r in range(c, k):
-            v = -path_product(path[c], length[c], Z[c], at[r], Y[r])
+            v = -path_product(path, length, Z, at, Y, c, r)
             B[r, c] = v
             B[c, r] = v
 

@@ -170,16 +170,14 @@ class StateArrays(NamedTuple):
 
 
 # ------------------------------------------------------------------ constraint sets
-# Ct = (ContactStep, ContactRowArrays, ContactView, ArticulatedArrays,
-# SolverParams, SoftParams) and Jx = (JointStep, JointArrays, TreeRows,
-# TreeLayout, TreeScratch, JointGeometry): tuples built in the world's kernel.
+# Each helper takes the parts it reads as arguments of their own (unpacking a
+# tuple of them counted a reference to every array in it at every call).
 
 @inner_kernel
-def _contacts_warm_start(Ct, wi, substep, v, w):
+def _contacts_warm_start(C, R, view, S, wi, substep, v, w):
     """The contact rows' warm start of world wi: the impulses of the last
     substep summed into the step's (restitution takes them back), then
     applied again, the articulated rows' in contact space first."""
-    C, R, view, S, _, _ = Ct
     if not C.on:
         return
     if substep > 0 and C.bouncy:
@@ -195,10 +193,9 @@ def _contacts_warm_start(Ct, wi, substep, v, w):
 
 
 @inner_kernel
-def _contacts_solve(Ct, wi, x, q, v, w, use_bias, only_free):
+def _contacts_solve(C, R, view, S, p, ap, wi, x, q, v, w, use_bias, only_free):
     """One sweep of world wi's contact rows (``only_free``: those of unjointed
     bodies), then, unless ``only_free``, its articulated rows."""
-    C, R, view, S, p, ap = Ct
     if not C.on:
         return
     con._solve_world(R, C.order, C.world_start[wi], C.world_start[wi + 1], x, q, v, w, p, use_bias, only_free)
@@ -207,11 +204,10 @@ def _contacts_solve(Ct, wi, x, q, v, w, use_bias, only_free):
 
 
 @inner_kernel
-def _joints_warm_start(Jx, wi, substep, s):
+def _joints_warm_start(Jt, J, g, wi, substep, s):
     """The joints' warm start of world wi: the last substep's impulses into
     the step's load (breaking), the load before this substep's solve
     (geometric stiffness), then every stored impulse applied again."""
-    Jt, J, _, _, _, g = Jx
     if substep > 0 and Jt.breakable:
         _add_load_world(s.lam_lin[wi], s.lam_ang[wi], s.lam_limit[wi], Jt.lin_sum[wi], Jt.ang_sum[wi])
     if Jt.tree and Jt.geometric:
@@ -223,13 +219,12 @@ def _joints_warm_start(Jx, wi, substep, s):
 
 
 @inner_kernel
-def _joints_solve(Jx, wi, s, c, use_bias, factored, unit):
+def _joints_solve(Jt, J, T, layout, S, g, wi, s, c, use_bias, factored, unit):
     """One solve of world wi's joints: the equality rows (Gauss-Seidel, then
     the tree) in the biased solve and, with ``relax``, the relax solve; the
     Gauss-Seidel limit rows in every solve. ``factored``: the tree's factors
     hold the current positions; returns whether they do after the solve.
     ``unit`` (3, nj): the relax solve's softness terms (0, 1, 0)."""
-    Jt, J, T, layout, S, g = Jx
     if use_bias or Jt.relax:
         if Jt.eq_joints.size:
             soft = use_bias and not Jt.thesis
@@ -263,12 +258,11 @@ def _joints_solve(Jx, wi, s, c, use_bias, factored, unit):
 
 
 @inner_kernel
-def _positions_moved(Jx, wi, s, c, warmed):
+def _positions_moved(Jt, J, T, g, wi, s, c, warmed):
     """The bodies moved and turned: world wi's joint geometry, world inverse
     inertias and tree metric at the new positions, with geometric stiffness
     from the joints' load through the substep: once a warm start has recorded
     |λ| before the biased solve (``warmed``), the smaller of that and |λ|."""
-    Jt, J, T, _, _, g = Jx
     _geometry_world(J, s.x[wi], s.q[wi], g, wi)
     _inertia_world(s.q[wi], Jt.inv_inertia, Jt.rot[wi], Jt.iinv_raw[wi])
     if Jt.tree_metric:
@@ -295,8 +289,6 @@ def substeps(c, C, R, view, AS, p, ap, Jt, J, T, layout, TS, g, bodies, gravitat
     solve is written once, in a loop over its two phases (biased, relax):
     numba's compile time grows with each call site and function that passes
     these arguments on."""
-    Ct = (C, R, view, AS, p, ap)
-    Jx = (Jt, J, T, layout, TS, g)
     n = s.x.shape[1]
     nj = Jt.tree_soft.shape[2]
     unit = np.zeros((3, nj))  # the relax solve's softness terms (0, 1, 0)
@@ -329,14 +321,14 @@ def substeps(c, C, R, view, AS, p, ap, Jt, J, T, layout, TS, g, bodies, gravitat
                         explicit_euler_world(bodies, gravitation, springs, motors, x, q, v, w, sb, broken,
                                              s.cforce[wi], s.ctorque[wi], s.motor[wi], force, torque, c.h)
                         if c.joints:
-                            _positions_moved(Jx, wi, s, c, sub > 0)
+                            _positions_moved(Jt, J, T, g, wi, s, c, sub > 0)
                             factored = False
                     else:
                         runge_kutta4_world(bodies, gravitation, springs, motors, x, q, v, w, sb, broken,
                                            s.cforce[wi], s.ctorque[wi], s.motor[wi], force, torque, xs, qs, vs, ws,
                                            sx, sq, sv, sw, c.h)
                         if c.joints:
-                            _positions_moved(Jx, wi, s, c, sub > 0)
+                            _positions_moved(Jt, J, T, g, wi, s, c, sub > 0)
                             factored = False
                         for i in range(n):
                             for k in range(3):
@@ -358,7 +350,7 @@ def substeps(c, C, R, view, AS, p, ap, Jt, J, T, layout, TS, g, bodies, gravitat
                             for k in range(4):
                                 q[i, k] = qi[k]
                     if c.joints:
-                        _positions_moved(Jx, wi, s, c, True)
+                        _positions_moved(Jt, J, T, g, wi, s, c, True)
                         factored = False
                 if not (c.contacts or c.joints):
                     continue
@@ -369,9 +361,9 @@ def substeps(c, C, R, view, AS, p, ap, Jt, J, T, layout, TS, g, bodies, gravitat
                     for part in range(2):
                         if (part == 0) == c.contacts_first:
                             if c.contacts:
-                                _contacts_warm_start(Ct, wi, sub, v, w)
+                                _contacts_warm_start(C, R, view, AS, wi, sub, v, w)
                         elif c.joints:
-                            _joints_warm_start(Jx, wi, sub, s)
+                            _joints_warm_start(Jt, J, g, wi, sub, s)
                 sweeps = c.iterations if use_bias else c.relax_iterations
                 free_passes = 0 if use_bias or not c.contacts else c.free_relax_passes
                 for it in range(sweeps + free_passes):
@@ -379,9 +371,9 @@ def substeps(c, C, R, view, AS, p, ap, Jt, J, T, layout, TS, g, bodies, gravitat
                     for part in range(2):
                         if (part == 0) == c.contacts_first:
                             if c.contacts:
-                                _contacts_solve(Ct, wi, x, q, v, w, use_bias, only_free)
+                                _contacts_solve(C, R, view, AS, p, ap, wi, x, q, v, w, use_bias, only_free)
                         elif c.joints and not only_free:
-                            factored = _joints_solve(Jx, wi, s, c, use_bias, factored, unit)
+                            factored = _joints_solve(Jt, J, T, layout, TS, g, wi, s, c, use_bias, factored, unit)
 
 
 # ------------------------------------------------------------------ absent parts
