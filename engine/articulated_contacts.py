@@ -82,13 +82,8 @@ class ArticulatedContacts:
         C = 3 * P
         a_start = np.zeros(W + 1, dtype=np.int64)
         a_start[1:] = np.cumsum((3 * count) ** 2)
-        # The tree's row blocks and factors at these positions, of the held worlds.
-        _, _, _, _, _, _, _, Ja, Jb, mask = tree.blocks(js, state, tree)
-        Ja, Jb, mask = (np.ascontiguousarray(x, dtype=np.float64) for x in (Ja, Jb, mask))
-        if held.size == W:
-            Dinv, L = tree._factor(Ja, Jb, mask, tree.M, M_inv=tree.M_inv)
-        else:
-            Dinv, L = tree._factor(Ja[held], Jb[held], mask[held], tree.M[held], M_inv=tree.M_inv[held])
+        # The held worlds' factors of the tree at these positions (filled by the response kernel).
+        n = tree.layout.order.size
         factors = np.full(W, -1, dtype=np.int64)
         factors[held] = np.arange(held.size)
         node = np.full(N, -1, dtype=np.int64)
@@ -96,13 +91,15 @@ class ArticulatedContacts:
         self.arrays = S = kernels.ArticulatedArrays(
             held=held, pt_start=pt_start, pt_row=pt_row, pt_slot=slot.astype(np.int64), row_start=row_start,
             rows=rows_w, tree_bodies=tree.t.bodies, node=node, order=tree.layout.order, parent=tree.layout.parent,
-            factors=factors, Dinv=np.ascontiguousarray(Dinv), L=np.ascontiguousarray(L),
+            factors=factors, Dinv=np.empty((held.size, n, 6, 6)), L=np.empty((held.size, n, 6, 6)),
             M=np.ascontiguousarray(tree.M), body=np.empty(C, dtype=np.int64), J=np.empty((C, 6)),
             A=np.empty(int(a_start[-1])), a_start=a_start, m=np.empty(C), mu=np.empty(P),
             finite=np.ones(W, dtype=bool))
         self.sweeps = int(model.settings.articulated_contact_sweeps)
         self.contact_view = kernels.ContactView(*(getattr(cr.arrays, f) for f in kernels.ContactView._fields))
-        kernels.response(cr.arrays, S)
+        g = js.geometry(state)
+        kernels.response(cr.arrays, S, tree.arrays, tree.layout, g.fpw, g.ra, g.rb, state.joint_broken,
+                         np.ascontiguousarray(tree.M_inv))
 
     # ------------------------------------------------------------------ views
     def delassus(self, w):

@@ -45,7 +45,8 @@ import numpy as np
 
 from .contacts import separation
 from .jit import SERIAL_BELOW, kernel, parallel_kernel, prange
-from .tree import path_product, solve_nodes, walk_up
+from .tree import factor, path_product, solve_nodes, walk_up
+from .tree_solve import blocks
 from .vec import cross
 
 
@@ -133,16 +134,25 @@ def _minimum(a, b):
 
 # ------------------------------------------------------------------ response (one world)
 @kernel
-def _response_world(R, S, w):
-    """J, body, A, m and the finite flag of world w (``ArticulatedArrays``),
-    from the step's ``ContactRowArrays`` R and the world's tree factors."""
+def _response_world(R, S, T, layout, fpw, ra, rb, broken, M_inv, w):
+    """The factors, J, body, A, m and the finite flag of world w
+    (``ArticulatedArrays``), from the step's ``ContactRowArrays`` R, the
+    tree's rows T and layout, the world's joint frames fpw (J, 4), lever
+    arms ra, rb (J, 3) and broken flags (J,), and the inverse M_inv
+    (nb, 6, 6) of its metric S.M[w]: the tree's equality rows factored at
+    the step's start (``tree_solve.blocks``, ``tree.factor``)."""
+    f = S.factors[w]
+    Dinv, L = S.Dinv[f], S.L[f]
+    nj = T.joint.size
+    E, mask = np.empty((nj, 3, 3)), np.empty((nj, 6))
+    Ja, Jb = np.empty((nj, 6, 6)), np.empty((nj, 6, 6))
+    blocks(T, fpw, ra, rb, broken, E, mask, Ja, Jb)
+    factor(layout, Ja, Jb, mask, S.M[w], M_inv, True, True, Dinv, L)
     p0, p1 = S.pt_start[w], S.pt_start[w + 1]
     lo = 3 * p0
     k = 3 * (p1 - p0)
     if k == 0:
         return
-    f = S.factors[w]
-    Dinv, L = S.Dinv[f], S.L[f]
     n = S.order.size
     # The columns' J on their bodies, each walked up its body's path: F⁻¹ J_iᵀ and D⁻¹ F⁻¹ J_iᵀ.
     path = np.empty((k, n), dtype=np.int64)
@@ -189,15 +199,18 @@ def _response_world(R, S, w):
 
 
 @parallel_kernel
-def response(R, S):
-    """``_response_world`` of every world in S.held."""
+def response(R, S, T, layout, fpw, ra, rb, broken, M_inv):
+    """``_response_world`` of every world in S.held; fpw, ra, rb, broken
+    (W, J, ...) and M_inv (W, nb, 6, 6) of the batch."""
     H = S.held.size
     if H < SERIAL_BELOW:
         for q in range(H):
-            _response_world(R, S, S.held[q])
+            w = S.held[q]
+            _response_world(R, S, T, layout, fpw[w], ra[w], rb[w], broken[w], M_inv[w], w)
     else:
         for q in prange(H):
-            _response_world(R, S, S.held[q])
+            _response_world(R, S, T, layout, fpw[S.held[q]], ra[S.held[q]], rb[S.held[q]], broken[S.held[q]],
+                            M_inv[S.held[q]], S.held[q])
 
 
 # ------------------------------------------------------------------ velocities (one world)
