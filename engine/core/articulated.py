@@ -45,7 +45,7 @@ import numpy as np
 
 from .contacts import separation
 from .jit import SERIAL_BELOW, kernel, parallel_kernel, prange
-from .tree import factor, path_product, solve_nodes, walk_up
+from .tree import factor, path_product, solve_nodes, walk_up, walks
 from .tree_solve import blocks
 from .vec import cross
 
@@ -155,11 +155,7 @@ def _response_world(R, S, T, layout, fpw, ra, rb, broken, M_inv, w):
         return
     n = S.order.size
     # The columns' J on their bodies, each walked up its body's path: F⁻¹ J_iᵀ and D⁻¹ F⁻¹ J_iᵀ.
-    path = np.empty((k, n), dtype=np.int64)
-    length = np.empty(k, dtype=np.int64)
-    at = np.full((k, n), -1, dtype=np.int64)
-    Y = np.empty((k, n, 6))
-    Zp = np.empty((k, n, 6))
+    path, length, at, Y, Zp = walks(k, n)
     y = np.empty(6)
     for p in range(p0, p1):
         r, s = S.pt_row[p], S.pt_slot[p]

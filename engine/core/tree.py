@@ -358,6 +358,14 @@ def substitute_one(layout, Dinv, L, r, x):
 
 
 @kernel
+def walks(k, n):
+    """Room for k walks of ``walk_up`` over a tree of n nodes: (path (k, n),
+    length (k,), at (k, n) all -1, Y (k, n, 6), Z (k, n, 6))."""
+    return (np.empty((k, n), dtype=np.int64), np.empty(k, dtype=np.int64), np.full((k, n), -1, dtype=np.int64),
+            np.empty((k, n, 6)), np.empty((k, n, 6)))
+
+
+@kernel
 def walk_up(parent, Dinv, L, node, y, path, at, Y, Z, c):
     """The forward substitution F⁻¹ e of a right-hand side y (6,) on one
     node, for the factors of ``factor`` ([M Jᵀ; J 0] = F D Fᵀ, F unit
@@ -418,11 +426,7 @@ def rows_inverse(layout, row_joint, row_slot, Dinv, L, B):
     nb = layout.n_bodies
     n = layout.order.size
     k = row_joint.size
-    path = np.empty((k, n), dtype=np.int64)
-    length = np.empty(k, dtype=np.int64)
-    at = np.full((k, n), -1, dtype=np.int64)
-    Y = np.empty((k, n, 6))
-    Z = np.empty((k, n, 6))
+    path, length, at, Y, Z = walks(k, n)
     y = np.empty(6)
     for c in range(k):
         for s in range(6):
