@@ -241,65 +241,19 @@ def factor(layout, Ja, Jb, mask, M, M_inv, use_leaf_inv, ball_rows, Dinv, L):
 @kernel
 def substitute(layout, Dinv, L, R, X):
     """X = (J M⁻¹ Jᵀ)⁻¹ R of one world, R and X (nj, 6, k), through the
-    factors of ``factor``: the forward substitution leaves first, the back
-    substitution roots first, x = -z on the joints' rows. Each entry of a
-    column is a 6-term sum in a fixed order; the loop over the k columns is
-    innermost, so the columns are independent lanes of the same products."""
+    factors of ``factor``: each column one ``solve_nodes`` with its
+    right-hand side on the joints, x = -z on the joints' rows."""
     nb = layout.n_bodies
     n = layout.order.size
-    k = R.shape[2]
-    y = np.zeros((n, 6, k))  # forward values, overwritten by x in the back substitution
-    for j in range(n - nb):
-        for r in range(6):
-            for c in range(k):
-                y[nb + j, r, c] = R[j, r, c]
-    s = np.empty(k)
-    t = np.empty(k)
-    tmp = np.empty((6, k))
-    for q in range(n):
-        node = layout.order[q]
-        p = layout.parent[node]
-        if p < 0:
-            continue
-        # y_parent -= L_nodeᵀ y_node (children in node order, as they come leaves first).
-        for r in range(6):
-            for c in range(k):
-                s[c] = 0.0
-            for i in range(6):
-                f = L[node, i, r]
-                for c in range(k):
-                    s[c] += f * y[node, i, c]
-            for c in range(k):
-                y[p, r, c] -= s[c]
-    for q in range(n - 1, -1, -1):
-        node = layout.order[q]
-        p = layout.parent[node]
-        # x_node = D⁻¹ y_node - L_node x_parent (the parent's x is in y already).
-        for r in range(6):
-            for c in range(k):
-                s[c] = 0.0
-            for i in range(6):
-                f = Dinv[node, r, i]
-                for c in range(k):
-                    s[c] += f * y[node, i, c]
-            if p >= 0:
-                for c in range(k):
-                    t[c] = 0.0
-                for i in range(6):
-                    f = L[node, r, i]
-                    for c in range(k):
-                        t[c] += f * y[p, i, c]
-                for c in range(k):
-                    s[c] -= t[c]
-            for c in range(k):
-                tmp[r, c] = s[c]
-        for r in range(6):
-            for c in range(k):
-                y[node, r, c] = tmp[r, c]
-    for j in range(n - nb):
-        for r in range(6):
-            for c in range(k):
-                X[j, r, c] = -y[nb + j, r, c]
+    y = np.empty((n, 6))
+    for c in range(R.shape[2]):
+        for node in range(n):
+            for s in range(6):
+                y[node, s] = R[node - nb, s, c] if node >= nb else 0.0
+        solve_nodes(layout.order, layout.parent, Dinv, L, y)
+        for j in range(n - nb):
+            for s in range(6):
+                X[j, s, c] = -y[nb + j, s]
 
 
 @kernel
@@ -343,8 +297,7 @@ def solve_nodes(order, parent, Dinv, L, y):
 @kernel
 def substitute_one(layout, Dinv, L, r, x):
     """x = (J M⁻¹ Jᵀ)⁻¹ r of one world for one right-hand side, r and x
-    (nj, 6): ``substitute`` of a single column, the same sums in the same
-    order."""
+    (nj, 6): ``substitute`` of a single column."""
     nb = layout.n_bodies
     n = layout.order.size
     y = np.zeros((n, 6))
