@@ -52,6 +52,13 @@ kernel = numba.njit(cache=True, fastmath=False, error_model="numpy", nogil=True)
 #: seconds of compile time each.
 inner_kernel = numba.njit(cache=True, fastmath=False, error_model="numpy", nogil=True, no_cpython_wrapper=True,
                           no_cfunc_wrapper=True)
+#: ``inner_kernel`` inlined into its callers by numba (``inline="always"``):
+#: a call to a compiled function counts a reference to each array it is
+#: passed, on entry and exit (two atomic operations each), so a helper
+#: taking tuples of arrays, called in a loop, spends more on the counts than
+#: on its work; inlined, the counts go.
+inlined_kernel = numba.njit(cache=True, fastmath=False, error_model="numpy", nogil=True, no_cpython_wrapper=True,
+                            no_cfunc_wrapper=True, inline="always")
 parallel_kernel = numba.njit(cache=True, fastmath=False, error_model="numpy", nogil=True, parallel=True)
 prange = numba.prange
 

@@ -49,7 +49,7 @@ from .integrate import (
     runge_kutta4_world,
     semi_implicit_velocities,
 )
-from .jit import inner_kernel, kernel
+from .jit import inlined_kernel, kernel
 from .joint_rows import _add_load_world, _equality_world, _limits_world
 from .joints import _geometry_world, _inertia_world, _passive_world
 from .joints import _warm_start_world as _joint_warm_start
@@ -173,7 +173,7 @@ class StateArrays(NamedTuple):
 # Each helper takes the parts it reads as arguments of their own (unpacking a
 # tuple of them counted a reference to every array in it at every call).
 
-@inner_kernel
+@inlined_kernel
 def _contacts_warm_start(C, R, view, S, wi, substep, v, w):
     """The contact rows' warm start of world wi: the impulses of the last
     substep summed into the step's (restitution takes them back), then
@@ -192,7 +192,7 @@ def _contacts_warm_start(C, R, view, S, wi, substep, v, w):
     con._warm_start_world(R, C.order, C.world_start[wi], C.world_start[wi + 1], v, w)
 
 
-@inner_kernel
+@inlined_kernel
 def _contacts_solve(C, R, view, S, p, ap, wi, x, q, v, w, use_bias, only_free):
     """One sweep of world wi's contact rows (``only_free``: those of unjointed
     bodies), then, unless ``only_free``, its articulated rows."""
@@ -203,7 +203,7 @@ def _contacts_solve(C, R, view, S, p, ap, wi, x, q, v, w, use_bias, only_free):
         art._solve_world(view, S, wi, x, q, v, w, ap, use_bias)
 
 
-@inner_kernel
+@inlined_kernel
 def _joints_warm_start(Jt, J, g, wi, substep, s):
     """The joints' warm start of world wi: the last substep's impulses into
     the step's load (breaking), the load before this substep's solve
@@ -218,7 +218,7 @@ def _joints_warm_start(Jt, J, g, wi, substep, s):
                       s.lam_limit[wi], s.v[wi], s.w[wi])
 
 
-@inner_kernel
+@inlined_kernel
 def _joints_solve(Jt, J, T, layout, S, g, wi, s, c, use_bias, factored, unit):
     """One solve of world wi's joints: the equality rows (Gauss-Seidel, then
     the tree) in the biased solve and, with ``relax``, the relax solve; the
@@ -257,7 +257,7 @@ def _joints_solve(Jt, J, T, layout, S, g, wi, s, c, use_bias, factored, unit):
     return factored
 
 
-@inner_kernel
+@inlined_kernel
 def _positions_moved(Jt, J, T, g, wi, s, c, warmed):
     """The bodies moved and turned: world wi's joint geometry, world inverse
     inertias and tree metric at the new positions, with geometric stiffness
