@@ -253,8 +253,11 @@ class Settings:
         the joints, in the worlds where an error exceeds the slop; 0 turns it
         off. A world's passes stop once its error beyond the slop is within
         1% of the slop (``joint_projection.TOLERANCE``; two passes in most
-        projected steps under random maximum torques, where all four ran
-        before to 1e-8 m, for about 8% of that step). Default 4 passes. With
+        projected steps under random maximum torques), so the most passes
+        cost only where they are needed: where a static contact projection
+        moved a limb far, 4 passes left the joints open and the move was
+        undone, the limb left in the ground (docs/decisions.md). Default 8
+        passes. With
         a 4 cm slop (``SOFT_JOINTS``, the default slop before 2026-12-04) it
         was a safety net for extremes:
         the ragdoll hitting the ground at 100 m/s keeps its joints within
@@ -473,7 +476,7 @@ class Settings:
     gs_joint_hertz: float = 60.0
     gs_joint_damping_ratio: float = 2.0
     joint_relax: bool = True
-    joint_projection_passes: int = 4
+    joint_projection_passes: int = 8
     joint_projection_slop: float = 0.0002
     free_joint_projection_slop: float = 0.04
     joint_projection_contact_weight: float = 1000.0

@@ -47,16 +47,13 @@ if "NUMBA_THREADING_LAYER" not in os.environ and "NUMBA_THREADING_LAYER_PRIORITY
     numba.config.THREADING_LAYER = "default"
 
 kernel = numba.njit(cache=True, fastmath=False, error_model="numpy", nogil=True)
-#: ``kernel`` for a helper called only from other kernels: no wrappers for
-#: calls from Python, which for a helper taking many tuples of arrays cost
-#: seconds of compile time each.
-inner_kernel = numba.njit(cache=True, fastmath=False, error_model="numpy", nogil=True, no_cpython_wrapper=True,
-                          no_cfunc_wrapper=True)
-#: ``inner_kernel`` inlined into its callers by numba (``inline="always"``):
-#: a call to a compiled function counts a reference to each array it is
-#: passed, on entry and exit (two atomic operations each), so a helper
-#: taking tuples of arrays, called in a loop, spends more on the counts than
-#: on its work; inlined, the counts go.
+#: ``kernel`` for a helper called only from other kernels, inlined into its
+#: callers by numba (``inline="always"``): no wrappers for calls from
+#: Python (for a helper taking many tuples of arrays they cost seconds of
+#: compile time each), and no call: a call to a compiled function counts a
+#: reference to each array it is passed, on entry and exit (two atomic
+#: operations each), so a helper taking tuples of arrays, called in a loop,
+#: spends more on the counts than on its work.
 inlined_kernel = numba.njit(cache=True, fastmath=False, error_model="numpy", nogil=True, no_cpython_wrapper=True,
                             no_cfunc_wrapper=True, inline="always")
 parallel_kernel = numba.njit(cache=True, fastmath=False, error_model="numpy", nogil=True, parallel=True)
