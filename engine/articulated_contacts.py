@@ -59,42 +59,31 @@ class ArticulatedContacts:
 
     def __init__(self, model, state, cr, js):
         tree = js.tree
-        rows = np.flatnonzero(cr.jointed & ~cr.dyn_a & cr.dyn_b)
-        if tree is not None and tree.exact_loop is not None:
-            # Articulations closed by loops keep the body-by-body rows: Z below knows the tree rows only.
-            rows = rows[~tree.exact_loop[tree.body_component[cr.b[rows]]]]
-        self.rows = rows
-        self.empty = rows.size == 0 or tree is None
+        self.empty = tree is None
         if self.empty:
             return
-        W, N = state.num_worlds, model.num_bodies
+        W = state.num_worlds
         # The rows world by world (in row order within a world), and their
         # valid points in row then slot order: point p's columns are 3p
-        # (normal), 3p + 1 and 3p + 2 (friction along t1, t2).
-        rows_w = rows[np.argsort(cr.w[rows], kind="stable")]
-        row_start = np.searchsorted(cr.w[rows_w], np.arange(W + 1))
-        ri, slot = np.nonzero(cr.valid[rows_w])
-        pt_row = rows_w[ri]
-        pt_start = np.searchsorted(cr.w[pt_row], np.arange(W + 1))
-        count = np.diff(pt_start)
-        held = np.flatnonzero(np.diff(row_start))  # the worlds with a row (some may have no valid point)
-        P = pt_row.size
-        C = 3 * P
-        a_start = np.zeros(W + 1, dtype=np.int64)
-        a_start[1:] = np.cumsum((3 * count) ** 2)
+        # (normal), 3p + 1 and 3p + 2 (friction along t1, t2). Articulations
+        # closed by loops keep the body-by-body rows: Z knows the tree rows only.
+        A = cr.arrays
+        rows_w, row_start, held, pt_row, slot, pt_start, a_start, factors = kernels.layout(
+            A.w, A.dyn_a, A.dyn_b, A.b, cr.jointed, A.valid, tree.loop_bodies, W)
+        self.rows = rows_w
+        self.empty = rows_w.size == 0
+        if self.empty:
+            return
+        C = 3 * pt_row.size
         # The held worlds' factors of the tree at these positions (filled by the response kernel).
         n = tree.layout.order.size
-        factors = np.full(W, -1, dtype=np.int64)
-        factors[held] = np.arange(held.size)
-        node = np.full(N, -1, dtype=np.int64)
-        node[tree.t.bodies] = np.arange(tree.t.bodies.size)
         self.arrays = S = kernels.ArticulatedArrays(
-            held=held, pt_start=pt_start, pt_row=pt_row, pt_slot=slot.astype(np.int64), row_start=row_start,
-            rows=rows_w, tree_bodies=tree.t.bodies, node=node, order=tree.layout.order, parent=tree.layout.parent,
-            factors=factors, Dinv=np.empty((held.size, n, 6, 6)), L=np.empty((held.size, n, 6, 6)),
-            M=np.ascontiguousarray(tree.M), body=np.empty(C, dtype=np.int64), J=np.empty((C, 6)),
-            A=np.empty(int(a_start[-1])), a_start=a_start, m=np.empty(C), mu=np.empty(P),
-            finite=np.ones(W, dtype=bool))
+            held=held, pt_start=pt_start, pt_row=pt_row, pt_slot=slot, row_start=row_start,
+            rows=rows_w, tree_bodies=tree.t.bodies, node=tree.body_node, order=tree.layout.order,
+            parent=tree.layout.parent, factors=factors, Dinv=np.empty((held.size, n, 6, 6)),
+            L=np.empty((held.size, n, 6, 6)), M=np.ascontiguousarray(tree.M), body=np.empty(C, dtype=np.int64),
+            J=np.empty((C, 6)), A=np.empty(int(a_start[-1])), a_start=a_start, m=np.empty(C),
+            mu=np.empty(pt_row.size), finite=np.ones(W, dtype=bool))
         self.sweeps = int(model.settings.articulated_contact_sweeps)
         self.contact_view = kernels.ContactView(*(getattr(cr.arrays, f) for f in kernels.ContactView._fields))
         g = js.geometry(state)
@@ -166,3 +155,4 @@ class ArticulatedContacts:
         speed is ``target`` (m/s), in one sweep with the coupling A."""
         kernels.bounce(self.contact_view, self.arrays, state.velocity, state.angular_velocity,
                        np.ascontiguousarray(bounce, dtype=bool), np.ascontiguousarray(target, dtype=np.float64))
+

@@ -181,6 +181,9 @@ class _TreeSolver(_Rows):
             child_is_b=np.ascontiguousarray(self.child_is_b, dtype=bool))
         self.limits = False
         self.exact_loop = None  # (articulations + 1,) bool: closed by loops solved with the tree (JointSet)
+        self.loop_bodies = np.zeros(model.num_bodies, dtype=bool)  # (N,): bodies of those articulations (JointSet)
+        self.body_node = np.full(model.num_bodies, -1, dtype=np.int64)  # (N,): each body's tree node, -1 off it
+        self.body_node[t.bodies] = np.arange(t.bodies.size)
         self.active_set_passes = settings.joint_active_set_passes
         self.component, self.num_components, self.body_component = t.component, t.num_components, t.body_component
         self.geometric_weight = None  # per step: 1, or (W, tree joints) weights, or None

@@ -201,6 +201,7 @@ class JointSet:
             exact_loop[-1] = False
             # Per articulation (last entry: no articulation, False): closed by loops solved with the tree.
             t.exact_loop = exact_loop if exact_loop.any() else None
+            t.loop_bodies = exact_loop[t.body_component]
             self._loop_tree_joints = None if t.exact_loop is None else exact_loop[t.component]
             tree_pos = np.full(J, -1, dtype=np.int64)
             tree_pos[t.joints] = np.arange(t.joints.size)

@@ -132,6 +132,62 @@ def _minimum(a, b):
     return b
 
 
+# ------------------------------------------------------------------ layout (all worlds)
+@kernel
+def layout(w, a_dyn, b_dyn, b, jointed, valid, off_tree, num_worlds):
+    """The packing of a step's articulated columns: the contact rows (R of
+    them, the step's ``ContactRowArrays`` fields w, dyn_a, dyn_b, b, valid
+    and ``jointed``) between a static body (side a) and a jointed moving one
+    (side b) whose body is not ``off_tree`` (N,) (articulations closed by
+    loops keep the body-by-body rows), world by world in row order; their
+    valid points in row then slot order. Returns (rows, row_start, held,
+    pt_row, pt_slot, pt_start, a_start, factors) as ``ArticulatedArrays``
+    holds them (``factors[w]``: world w's place among the held, -1 if none)."""
+    W = num_worlds
+    R = w.size
+    rows_per = np.zeros(W, dtype=np.int64)
+    pts_per = np.zeros(W, dtype=np.int64)
+    for r in range(R):
+        if jointed[r] and not a_dyn[r] and b_dyn[r] and not off_tree[b[r]]:
+            rows_per[w[r]] += 1
+            for j in range(valid.shape[1]):
+                if valid[r, j]:
+                    pts_per[w[r]] += 1
+    row_start = np.zeros(W + 1, dtype=np.int64)
+    pt_start = np.zeros(W + 1, dtype=np.int64)
+    a_start = np.zeros(W + 1, dtype=np.int64)
+    factors = np.full(W, -1, dtype=np.int64)
+    H = 0
+    for i in range(W):
+        row_start[i + 1] = row_start[i] + rows_per[i]
+        pt_start[i + 1] = pt_start[i] + pts_per[i]
+        a_start[i + 1] = a_start[i] + (3 * pts_per[i]) * (3 * pts_per[i])
+        if rows_per[i] > 0:
+            factors[i] = H
+            H += 1
+    held = np.empty(H, dtype=np.int64)
+    for i in range(W):
+        if factors[i] >= 0:
+            held[factors[i]] = i
+    rows = np.empty(row_start[W], dtype=np.int64)
+    cursor = row_start[:W].copy()
+    for r in range(R):
+        if jointed[r] and not a_dyn[r] and b_dyn[r] and not off_tree[b[r]]:
+            rows[cursor[w[r]]] = r
+            cursor[w[r]] += 1
+    pt_row = np.empty(pt_start[W], dtype=np.int64)
+    pt_slot = np.empty(pt_start[W], dtype=np.int64)
+    p = 0
+    for q in range(rows.size):
+        r = rows[q]
+        for j in range(valid.shape[1]):
+            if valid[r, j]:
+                pt_row[p] = r
+                pt_slot[p] = j
+                p += 1
+    return rows, row_start, held, pt_row, pt_slot, pt_start, a_start, factors
+
+
 # ------------------------------------------------------------------ response (one world)
 @kernel
 def _response_world(R, S, T, layout, fpw, ra, rb, broken, M_inv, w):
