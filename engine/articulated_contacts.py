@@ -155,4 +155,3 @@ class ArticulatedContacts:
         speed is ``target`` (m/s), in one sweep with the coupling A."""
         kernels.bounce(self.contact_view, self.arrays, state.velocity, state.angular_velocity,
                        np.ascontiguousarray(bounce, dtype=bool), np.ascontiguousarray(target, dtype=np.float64))
-
