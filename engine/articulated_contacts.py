@@ -69,7 +69,7 @@ class ArticulatedContacts:
         # closed by loops keep the body-by-body rows: Z knows the tree rows only.
         A = cr.arrays
         rows_w, row_start, held, pt_row, slot, pt_start, a_start, factors = kernels.layout(
-            A.w, A.dyn_a, A.dyn_b, A.b, cr.jointed, A.valid, tree.loop_bodies, W)
+            cr.world_rows, cr.row_start, A.dyn_a, A.dyn_b, A.b, cr.jointed, A.valid, tree.loop_bodies)
         self.rows = rows_w
         self.empty = rows_w.size == 0
         if self.empty:

@@ -134,58 +134,49 @@ def _minimum(a, b):
 
 # ------------------------------------------------------------------ layout (all worlds)
 @kernel
-def layout(w, a_dyn, b_dyn, b, jointed, valid, off_tree, num_worlds):
-    """The packing of a step's articulated columns: the contact rows (R of
-    them, the step's ``ContactRowArrays`` fields w, dyn_a, dyn_b, b, valid
-    and ``jointed``) between a static body (side a) and a jointed moving one
-    (side b) whose body is not ``off_tree`` (N,) (articulations closed by
-    loops keep the body-by-body rows), world by world in row order; their
-    valid points in row then slot order. Returns (rows, row_start, held,
-    pt_row, pt_slot, pt_start, a_start, factors) as ``ArticulatedArrays``
-    holds them (``factors[w]``: world w's place among the held, -1 if none)."""
-    W = num_worlds
-    R = w.size
-    rows_per = np.zeros(W, dtype=np.int64)
-    pts_per = np.zeros(W, dtype=np.int64)
-    for r in range(R):
-        if jointed[r] and not a_dyn[r] and b_dyn[r] and not off_tree[b[r]]:
-            rows_per[w[r]] += 1
-            for j in range(valid.shape[1]):
-                if valid[r, j]:
-                    pts_per[w[r]] += 1
+def layout(world_rows, world_start, a_dyn, b_dyn, b, jointed, valid, off_tree):
+    """The packing of a step's articulated columns: of the contact rows by
+    world (``ContactRows.world_rows``, ``row_start``: world by world, in
+    row order), those between a static body (side a) and a jointed moving
+    one (side b) whose body is not ``off_tree`` (N,) (articulations closed
+    by loops keep the body-by-body rows), and their valid points in row then
+    slot order; the rows' fields dyn_a, dyn_b, b, valid and ``jointed`` as
+    ``ContactRowArrays`` holds them. Returns (rows, row_start, held, pt_row,
+    pt_slot, pt_start, a_start, factors) as ``ArticulatedArrays`` holds them
+    (``factors[w]``: world w's place among the held, -1 if none)."""
+    W = world_start.size - 1
+    R = world_rows.size
+    rows = np.empty(R, dtype=np.int64)
+    pt_row = np.empty(R * valid.shape[1], dtype=np.int64)
+    pt_slot = np.empty(R * valid.shape[1], dtype=np.int64)
     row_start = np.zeros(W + 1, dtype=np.int64)
     pt_start = np.zeros(W + 1, dtype=np.int64)
     a_start = np.zeros(W + 1, dtype=np.int64)
     factors = np.full(W, -1, dtype=np.int64)
-    H = 0
+    nr = npt = H = 0
     for i in range(W):
-        row_start[i + 1] = row_start[i] + rows_per[i]
-        pt_start[i + 1] = pt_start[i] + pts_per[i]
-        a_start[i + 1] = a_start[i] + (3 * pts_per[i]) * (3 * pts_per[i])
-        if rows_per[i] > 0:
+        for k in range(world_start[i], world_start[i + 1]):
+            r = world_rows[k]
+            if jointed[r] and not a_dyn[r] and b_dyn[r] and not off_tree[b[r]]:
+                rows[nr] = r
+                nr += 1
+                for j in range(valid.shape[1]):
+                    if valid[r, j]:
+                        pt_row[npt] = r
+                        pt_slot[npt] = j
+                        npt += 1
+        row_start[i + 1] = nr
+        pt_start[i + 1] = npt
+        cols = 3 * (pt_start[i + 1] - pt_start[i])
+        a_start[i + 1] = a_start[i] + cols * cols
+        if nr > row_start[i]:
             factors[i] = H
             H += 1
     held = np.empty(H, dtype=np.int64)
     for i in range(W):
         if factors[i] >= 0:
             held[factors[i]] = i
-    rows = np.empty(row_start[W], dtype=np.int64)
-    cursor = row_start[:W].copy()
-    for r in range(R):
-        if jointed[r] and not a_dyn[r] and b_dyn[r] and not off_tree[b[r]]:
-            rows[cursor[w[r]]] = r
-            cursor[w[r]] += 1
-    pt_row = np.empty(pt_start[W], dtype=np.int64)
-    pt_slot = np.empty(pt_start[W], dtype=np.int64)
-    p = 0
-    for q in range(rows.size):
-        r = rows[q]
-        for j in range(valid.shape[1]):
-            if valid[r, j]:
-                pt_row[p] = r
-                pt_slot[p] = j
-                p += 1
-    return rows, row_start, held, pt_row, pt_slot, pt_start, a_start, factors
+    return rows[:nr].copy(), row_start, held, pt_row[:npt].copy(), pt_slot[:npt].copy(), pt_start, a_start, factors
 
 
 # ------------------------------------------------------------------ response (one world)
@@ -261,8 +252,8 @@ def response(R, S, T, layout, fpw, ra, rb, broken, M_inv):
             _response_world(R, S, T, layout, fpw[w], ra[w], rb[w], broken[w], M_inv[w], w)
     else:
         for q in prange(H):
-            _response_world(R, S, T, layout, fpw[S.held[q]], ra[S.held[q]], rb[S.held[q]], broken[S.held[q]],
-                            M_inv[S.held[q]], S.held[q])
+            w = S.held[q]
+            _response_world(R, S, T, layout, fpw[w], ra[w], rb[w], broken[w], M_inv[w], w)
 
 
 # ------------------------------------------------------------------ velocities (one world)
