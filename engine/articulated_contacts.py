@@ -108,7 +108,7 @@ class ArticulatedContacts:
         for i in range(k):
             unit = np.zeros(k)
             unit[i] = 1.0
-            kernels._apply_world(S, w, unit, out[i, :, :3], out[i, :, 3:])
+            kernels._apply_world(S, w, unit, out[i, :, :3], out[i, :, 3:], np.empty((S.order.size, 6)))
         return out
 
     def columns(self, w):

@@ -45,7 +45,7 @@ import numpy as np
 
 from .contacts import separation
 from .jit import SERIAL_BELOW, kernel, parallel_kernel, prange
-from .tree import factor, path_product, solve_nodes, walk_up, walks
+from .tree import factor, factor_scratch, path_product, solve_nodes, walk_up, walks
 from .tree_solve import blocks
 from .vec import cross
 
@@ -179,6 +179,27 @@ def layout(world_rows, world_start, a_dyn, b_dyn, b, jointed, valid, off_tree):
     return rows[:nr].copy(), row_start, held, pt_row[:npt].copy(), pt_slot[:npt].copy(), pt_start, a_start, factors
 
 
+@kernel
+def _zero_rows(y):
+    """y (n, 6) = 0."""
+    for i in range(y.shape[0]):
+        for c in range(6):
+            y[i, c] = 0.0
+
+
+@kernel
+def solve_work(S, first, stop):
+    """The work buffers (float64, bool) of ``_solve_world`` and
+    ``_warm_start_world`` for the worlds first..stop-1 (room for the most
+    points one of them has), allocated once by a caller that solves many
+    times."""
+    most = 0
+    if S.pt_start.size > stop:
+        for w in range(first, stop):
+            most = max(most, S.pt_start[w + 1] - S.pt_start[w])
+    return np.empty(19 * most + 6 * S.order.size), np.empty(most, dtype=np.bool_)
+
+
 # ------------------------------------------------------------------ response (one world)
 @kernel
 def _response_world(R, S, T, layout, fpw, ra, rb, broken, M_inv, w):
@@ -194,7 +215,8 @@ def _response_world(R, S, T, layout, fpw, ra, rb, broken, M_inv, w):
     E, mask = np.empty((nj, 3, 3)), np.empty((nj, 6))
     Ja, Jb = np.empty((nj, 6, 6)), np.empty((nj, 6, 6))
     blocks(T, fpw, ra, rb, broken, E, mask, Ja, Jb)
-    factor(layout, Ja, Jb, mask, S.M[w], M_inv, True, True, Dinv, L)
+    acc, work = factor_scratch(S.order.size)
+    factor(layout, Ja, Jb, mask, S.M[w], M_inv, True, True, Dinv, L, acc, work)
     p0, p1 = S.pt_start[w], S.pt_start[w + 1]
     lo = 3 * p0
     k = 3 * (p1 - p0)
@@ -258,15 +280,15 @@ def response(R, S, T, layout, fpw, ra, rb, broken, M_inv):
 
 # ------------------------------------------------------------------ velocities (one world)
 @kernel
-def _column_velocities(S, w, vel, angvel, u):
+def _column_velocities(S, w, vel, angvel, u, y):
     """u = J_c P v (k,) of world w: the column velocities after the joint
     solve's projection P v = Z M v = v - M⁻¹J_tᵀK⁻¹J_t v, one tree solve.
-    vel, angvel: the world's (N, 3)."""
+    vel, angvel: the world's (N, 3); y (n, 6): scratch."""
     lo, hi = 3 * S.pt_start[w], 3 * S.pt_start[w + 1]
     tb = S.tree_bodies
     M = S.M[w]
     f = S.factors[w]
-    y = np.zeros((S.order.size, 6))
+    _zero_rows(y)
     for q in range(tb.size):
         b = tb[q]
         v = (vel[b, 0], vel[b, 1], vel[b, 2], angvel[b, 0], angvel[b, 1], angvel[b, 2])
@@ -285,14 +307,15 @@ def _column_velocities(S, w, vel, angvel, u):
 
 
 @kernel
-def _apply_world(S, w, dlam, vel, angvel):
-    """v += Z J_cᵀ Δλ on the tree bodies of world w, one tree solve; dlam (k,)."""
+def _apply_world(S, w, dlam, vel, angvel, y):
+    """v += Z J_cᵀ Δλ on the tree bodies of world w, one tree solve; dlam
+    (k,); y (n, 6): scratch."""
     lo, hi = 3 * S.pt_start[w], 3 * S.pt_start[w + 1]
     if hi == lo:
         return
     tb = S.tree_bodies
     f = S.factors[w]
-    y = np.zeros((S.order.size, 6))
+    _zero_rows(y)
     for c in range(lo, hi):
         q = S.node[S.body[c]]
         g = dlam[c - lo]
@@ -343,14 +366,16 @@ def _scatter(R, S, w, lam):
 
 # ------------------------------------------------------------------ warm start (one world)
 @kernel
-def _warm_start_world(R, S, w, vel, angvel):
-    """v += Z J_cᵀ λ of the stored impulses, if any is non-zero."""
+def _warm_start_world(R, S, w, vel, angvel, fw):
+    """v += Z J_cᵀ λ of the stored impulses, if any is non-zero; fw: the
+    work buffer of ``solve_work``."""
     k = 3 * (S.pt_start[w + 1] - S.pt_start[w])
-    lam = np.empty(k)
+    lam = fw[0:k]
+    y = fw[k:k + 6 * S.order.size].reshape((S.order.size, 6))
     _gather(R, S, w, lam)
     for i in range(k):
         if lam[i] != 0.0:
-            _apply_world(S, w, lam, vel, angvel)
+            _apply_world(S, w, lam, vel, angvel, y)
             return
 
 
@@ -359,12 +384,14 @@ def warm_start(R, S, vel, angvel):
     """``_warm_start_world`` of every held world; vel, angvel (W, N, 3)."""
     H = S.held.size
     if H < SERIAL_BELOW:
+        fw, bw = solve_work(S, 0, S.pt_start.size - 1)
         for q in range(H):
             w = S.held[q]
-            _warm_start_world(R, S, w, vel[w], angvel[w])
+            _warm_start_world(R, S, w, vel[w], angvel[w], fw)
     else:
         for q in prange(H):
-            _warm_start_world(R, S, S.held[q], vel[S.held[q]], angvel[S.held[q]])
+            fw, bw = solve_work(S, S.held[q], S.held[q] + 1)
+            _warm_start_world(R, S, S.held[q], vel[S.held[q]], angvel[S.held[q]], fw)
 
 
 # ------------------------------------------------------------------ solve (one world)
@@ -416,24 +443,29 @@ def _sweep(S, w, u, lam, sweep_start, gain, bias, isc, soft, u_before):
 
 
 @kernel
-def _solve_world(R, S, w, pos, ori, vel, angvel, prm, use_bias):
+def _solve_world(R, S, w, pos, ori, vel, angvel, prm, use_bias, fw, bw):
     """``SoftParams.sweeps`` sweeps of world w (``_sweep``), each point's
     closing speed and gap recorded just before it first takes load (for
     restitution), then v += Z J_cᵀ Δλ and the impulses back to the rows. The
     normal columns' bias and gain: an open point (s > 0) is speculative
     (bias s/h, gain -m); a penetrating one soft in the biased solve (bias
     rate·min(s + slop, 0) capped at -max_push_out, gain -m·mass_scale,
-    impulse scale) and rigid without bias otherwise."""
+    impulse scale) and rigid without bias otherwise. fw, bw: the work
+    buffers of ``solve_work``."""
     p0, p1 = S.pt_start[w], S.pt_start[w + 1]
     n = p1 - p0
     k = 3 * n
     lo = 3 * p0
     h = prm.h
     soft = use_bias and not prm.thesis
-    sep = np.empty(n)
-    bias = np.empty(n)
-    gain = np.empty(n)
-    isc = np.zeros(n)
+    sep, bias, gain, isc = fw[0:n], fw[n:2 * n], fw[2 * n:3 * n], fw[3 * n:4 * n]
+    v_close, s_close, u_before = fw[4 * n:5 * n], fw[5 * n:6 * n], fw[6 * n:7 * n]
+    u, lam, start, sweep_start = fw[7 * n:7 * n + k], fw[7 * n + k:7 * n + 2 * k], fw[7 * n + 2 * k:7 * n + 3 * k], \
+        fw[7 * n + 3 * k:7 * n + 4 * k]
+    y = fw[7 * n + 4 * k:7 * n + 4 * k + 6 * S.order.size].reshape((S.order.size, 6))
+    loaded = bw[0:n]
+    for p in range(n):
+        isc[p] = 0.0
     for p in range(n):
         r, s = S.pt_row[p0 + p], S.pt_slot[p0 + p]
         x = separation(R, r, s, pos, ori)
@@ -449,23 +481,17 @@ def _solve_world(R, S, w, pos, ori, vel, angvel, prm, use_bias):
         else:
             bias[p] = x / h if x > 0.0 else 0.0
             gain[p] = -mi
-    u = np.empty(k)
-    _column_velocities(S, w, vel, angvel, u)
+    _column_velocities(S, w, vel, angvel, u, y)
     for i in range(k):
         u[i] = u[i] + 0.0  # no -0.0 entries (see _sweep)
-    lam = np.empty(k)
     _gather(R, S, w, lam)
-    start = lam.copy()
-    sweep_start = np.empty(k)
-    loaded = np.empty(n, dtype=np.bool_)
-    v_close = np.empty(n)
-    s_close = np.empty(n)
+    for i in range(k):
+        start[i] = lam[i]
     for p in range(n):
         r, s = S.pt_row[p0 + p], S.pt_slot[p0 + p]
         loaded[p] = R.max_lam_n[r, s] > 0.0
         v_close[p] = R.vn_close[r, s]
         s_close[p] = R.s_close[r, s]
-    u_before = np.empty(n)
     for _ in range(prm.sweeps):
         sweep_start[:] = lam
         _sweep(S, w, u, lam, sweep_start, gain, bias, isc, soft, u_before)
@@ -480,7 +506,7 @@ def _solve_world(R, S, w, pos, ori, vel, angvel, prm, use_bias):
         R.s_close[r, s] = s_close[p]
     for i in range(k):
         start[i] = lam[i] - start[i]
-    _apply_world(S, w, start, vel, angvel)
+    _apply_world(S, w, start, vel, angvel, y)
     _scatter(R, S, w, lam)
 
 
@@ -489,13 +515,15 @@ def solve(R, S, pos, ori, vel, angvel, prm, use_bias):
     """``_solve_world`` of every held world; pos, ori, vel, angvel (W, N, ...)."""
     H = S.held.size
     if H < SERIAL_BELOW:
+        fw, bw = solve_work(S, 0, S.pt_start.size - 1)
         for q in range(H):
             w = S.held[q]
-            _solve_world(R, S, w, pos[w], ori[w], vel[w], angvel[w], prm, use_bias)
+            _solve_world(R, S, w, pos[w], ori[w], vel[w], angvel[w], prm, use_bias, fw, bw)
     else:
         for q in prange(H):
+            fw, bw = solve_work(S, S.held[q], S.held[q] + 1)
             _solve_world(R, S, S.held[q], pos[S.held[q]], ori[S.held[q]], vel[S.held[q]], angvel[S.held[q]], prm,
-                         use_bias)
+                         use_bias, fw, bw)
 
 
 # ------------------------------------------------------------------ restitution (one world)
@@ -517,7 +545,8 @@ def _bounce_world(R, S, w, vel, angvel, bounce, target):
     if not on:
         return
     u = np.empty(k)
-    _column_velocities(S, w, vel, angvel, u)
+    y = np.empty((S.order.size, 6))
+    _column_velocities(S, w, vel, angvel, u, y)
     lam = np.empty(k)
     _gather(R, S, w, lam)
     start = lam.copy()
@@ -534,7 +563,7 @@ def _bounce_world(R, S, w, vel, angvel, bounce, target):
         lam[i] = new
     for i in range(k):
         start[i] = lam[i] - start[i]
-    _apply_world(S, w, start, vel, angvel)
+    _apply_world(S, w, start, vel, angvel, y)
     _scatter(R, S, w, lam)
 
 
@@ -558,8 +587,9 @@ def column_velocities(S, vel, angvel, u):
     if H < SERIAL_BELOW:
         for q in range(H):
             w = S.held[q]
-            _column_velocities(S, w, vel[w], angvel[w], u[3 * S.pt_start[w]:3 * S.pt_start[w + 1]])
+            _column_velocities(S, w, vel[w], angvel[w], u[3 * S.pt_start[w]:3 * S.pt_start[w + 1]],
+                               np.empty((S.order.size, 6)))
     else:
         for q in prange(H):
             _column_velocities(S, S.held[q], vel[S.held[q]], angvel[S.held[q]],
-                               u[3 * S.pt_start[S.held[q]]:3 * S.pt_start[S.held[q] + 1]])
+                               u[3 * S.pt_start[S.held[q]]:3 * S.pt_start[S.held[q] + 1]], np.empty((S.order.size, 6)))

@@ -39,7 +39,7 @@ import math
 import numpy as np
 
 from .jit import SERIAL_BELOW, kernel, parallel_kernel, prange
-from .tree import factor, inverse6_into, substitute
+from .tree import factor, factor_scratch, inverse6_into, substitute
 from .tree_solve import blocks, body_impulses, position_errors, right_hand_side
 from .vec import (
     cross,
@@ -345,6 +345,7 @@ def project(T, layout, J, keep, lin_slop, x, q, broken, M, M_inv, passes):
     C, mask_k = np.empty((nj, 6)), np.empty((nj, 6))
     sq = np.empty(3 * nj)
     Dinv, L = np.empty((nn, 6, 6)), np.empty((nn, 6, 6))
+    acc, work = factor_scratch(nn)
     rhs, X = np.empty((nj, 6, 1)), np.empty((nj, 6, 1))
     mu = np.empty((nj, 6))
     imp, d, last = np.empty((N, 6)), np.zeros((N, 6)), np.zeros((N, 6))
@@ -386,7 +387,7 @@ def project(T, layout, J, keep, lin_slop, x, q, broken, M, M_inv, passes):
                 for s in range(6):
                     mask_k[j, s] = mask[j, s] * kj
                     rhs[j, s, 0] = C[j, s]
-            factor(layout, Ja, Jb, mask_k, M, M_inv_tree, True, True, Dinv, L)
+            factor(layout, Ja, Jb, mask_k, M, M_inv_tree, True, True, Dinv, L, acc, work)
             substitute(layout, Dinv, L, rhs, X)
             for j in range(nj):
                 for s in range(6):

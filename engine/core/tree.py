@@ -162,19 +162,29 @@ def mul_abt_into(A, B, out):
 
 # ------------------------------------------------------------ one world
 @kernel
-def factor(layout, Ja, Jb, mask, M, M_inv, use_leaf_inv, ball_rows, Dinv, L):
+def factor_scratch(n):
+    """The scratch (acc (n, 6, 6), work (6, 6)) of ``factor`` over n nodes,
+    allocated once by a caller that factors many times."""
+    return np.empty((n, 6, 6)), np.empty((6, 6))
+
+
+@kernel
+def factor(layout, Ja, Jb, mask, M, M_inv, use_leaf_inv, ball_rows, Dinv, L, acc, work):
     """Block LDLᵀ factors of [M Jᵀ; J 0] of one world into Dinv and L (n, 6, 6).
 
     Ja, Jb (nj, 6, 6): each joint's rows on its sides a and b; mask (nj, 6):
     1 on a used row, 0 on an unused one; M (nb, 6, 6): the bodies' metric
     (kg, kg·m²) and, with ``use_leaf_inv``, M_inv its inverse (the leaf
     bodies' pivots); ``ball_rows``: the ball joints' angular rows are empty,
-    so their pivots take the closed form. L of a root is 0."""
+    so their pivots take the closed form. L of a root is 0. acc (n, 6, 6)
+    and work (6, 6): the caller's scratch (see ``factor_scratch``)."""
     nb = layout.n_bodies
     n = layout.order.size
     # acc: Σ_children J_pᵀ D_j⁻¹ J_p of a body node, J_c D_c⁻¹ J_cᵀ of a joint node.
-    acc = np.zeros((n, 6, 6))
-    work = np.empty((6, 6))
+    for k in range(n):
+        for r in range(6):
+            for c in range(6):
+                acc[k, r, c] = 0.0
     for k in range(n):
         node = layout.order[k]
         Di = Dinv[node]
@@ -275,23 +285,22 @@ def solve_nodes(order, parent, Dinv, L, y):
             for i in range(6):
                 acc += L[node, i, s] * y[node, i]
             y[p, s] -= acc
-    tmp = np.empty(6)
     for q in range(n - 1, -1, -1):
         node = order[q]
         p = parent[node]
-        # x_node = D⁻¹ y_node - L_node x_parent (the parent's x is in y already).
+        # x_node = D⁻¹ y_node - L_node x_parent (the parent's x is in y
+        # already); y_node is read from a copy, as x_node overwrites it.
+        yn = (y[node, 0], y[node, 1], y[node, 2], y[node, 3], y[node, 4], y[node, 5])
         for s in range(6):
             acc = 0.0
             for i in range(6):
-                acc += Dinv[node, s, i] * y[node, i]
+                acc += Dinv[node, s, i] * yn[i]
             if p >= 0:
                 t = 0.0
                 for i in range(6):
                     t += L[node, s, i] * y[p, i]
                 acc -= t
-            tmp[s] = acc
-        for s in range(6):
-            y[node, s] = tmp[s]
+            y[node, s] = acc
 
 
 @kernel
@@ -329,7 +338,6 @@ def walk_up(parent, Dinv, L, node, y, path, at, Y, Z, c):
     left as they are), F⁻¹ e and D⁻¹ F⁻¹ e on it to Y[c] and Z[c] (n, 6); y
     is overwritten. Returns the path's length. (Rows are indexed in place,
     not taken as views: a view costs two atomic reference counts.)"""
-    up = np.empty(6)
     m = 0
     while True:
         path[c, m] = node
@@ -344,13 +352,12 @@ def walk_up(parent, Dinv, L, node, y, path, at, Y, Z, c):
         p = parent[node]
         if p < 0:
             return m
+        # y_parent = -L_nodeᵀ y_node, reading y_node from its copy in Y.
         for s in range(6):
             acc = 0.0
             for i in range(6):
-                acc += L[node, i, s] * y[i]
-            up[s] = -acc
-        for s in range(6):
-            y[s] = up[s]
+                acc += L[node, i, s] * Y[c, m - 1, i]
+            y[s] = -acc
         node = p
 
 
@@ -399,12 +406,15 @@ def factor_batch(layout, Ja, Jb, mask, M, M_inv, use_leaf_inv, ball_rows, Dinv, 
     """``factor`` of every world: Ja, Jb (W, nj, 6, 6), mask (W, nj, 6), M and
     M_inv (W, nb, 6, 6) into Dinv, L (W, n, 6, 6)."""
     nw = Ja.shape[0]
+    n = layout.order.size
     if nw < SERIAL_BELOW:
+        acc, work = factor_scratch(n)
         for w in range(nw):
-            factor(layout, Ja[w], Jb[w], mask[w], M[w], M_inv[w], use_leaf_inv, ball_rows, Dinv[w], L[w])
+            factor(layout, Ja[w], Jb[w], mask[w], M[w], M_inv[w], use_leaf_inv, ball_rows, Dinv[w], L[w], acc, work)
     else:
         for w in prange(nw):
-            factor(layout, Ja[w], Jb[w], mask[w], M[w], M_inv[w], use_leaf_inv, ball_rows, Dinv[w], L[w])
+            acc, work = factor_scratch(n)
+            factor(layout, Ja[w], Jb[w], mask[w], M[w], M_inv[w], use_leaf_inv, ball_rows, Dinv[w], L[w], acc, work)
 
 
 @parallel_kernel

@@ -42,7 +42,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .jit import SERIAL_BELOW, kernel, parallel_kernel, prange
+from .jit import SERIAL_BELOW, inlined_kernel, kernel, parallel_kernel, prange
 from .tree import factor, rows_inverse, substitute_one, sym3_inverse_into
 from .vec import (
     add,
@@ -498,11 +498,79 @@ def _slot_rhs(r, lr, on, rhs):
             rhs[j, s] = val
 
 
+
+# ------------------------------------------------------------------ work buffers
+@kernel
+def solve_work(nj, n, N, k):
+    """The work buffers (float64, bool, int64) of ``solve_world`` for nj tree
+    joints, n tree nodes, N bodies and k limit rows: allocated once by a
+    caller that solves many times, carved into arrays by ``_work_views``."""
+    floats = 130 * nj + 6 * N + 108 * n + k * k + k + 36
+    return np.empty(floats), np.empty(9 * nj, dtype=np.bool_), np.empty(k, dtype=np.int64)
+
+
+@inlined_kernel
+def _work_views(fw, bw, iw, nj, n, N, k):
+    """The arrays of one solve carved from the work buffers of ``solve_work``
+    (uninitialised): lrows (nj, 2, 3), lr and sigma (nj, 2); mask_f, rhs, r,
+    lim, d (nj, 6); imp (N, 6); x1, xs, x0 (nj, 6); Jaw, Jbw (nj, 6, 6);
+    Dinv_w, L_w (n, 6, 6); Bd (k, k); delta (k,); ``factor``'s acc (n, 6, 6)
+    and work (6, 6); exists (nj, 2), lower (nj,), active, bad, add (nj, 2)
+    (bool); drop_idx (k,) (int64)."""
+    o = 0
+    lrows = fw[o:o + 6 * nj].reshape((nj, 2, 3))
+    o += 6 * nj
+    lr = fw[o:o + 2 * nj].reshape((nj, 2))
+    o += 2 * nj
+    sigma = fw[o:o + 2 * nj].reshape((nj, 2))
+    o += 2 * nj
+    mask_f = fw[o:o + 6 * nj].reshape((nj, 6))
+    o += 6 * nj
+    rhs = fw[o:o + 6 * nj].reshape((nj, 6))
+    o += 6 * nj
+    r = fw[o:o + 6 * nj].reshape((nj, 6))
+    o += 6 * nj
+    lim = fw[o:o + 6 * nj].reshape((nj, 6))
+    o += 6 * nj
+    d = fw[o:o + 6 * nj].reshape((nj, 6))
+    o += 6 * nj
+    imp = fw[o:o + 6 * N].reshape((N, 6))
+    o += 6 * N
+    x1 = fw[o:o + 6 * nj].reshape((nj, 6))
+    o += 6 * nj
+    xs = fw[o:o + 6 * nj].reshape((nj, 6))
+    o += 6 * nj
+    x0 = fw[o:o + 6 * nj].reshape((nj, 6))
+    o += 6 * nj
+    Jaw = fw[o:o + 36 * nj].reshape((nj, 6, 6))
+    o += 36 * nj
+    Jbw = fw[o:o + 36 * nj].reshape((nj, 6, 6))
+    o += 36 * nj
+    Dinv_w = fw[o:o + 36 * n].reshape((n, 6, 6))
+    o += 36 * n
+    L_w = fw[o:o + 36 * n].reshape((n, 6, 6))
+    o += 36 * n
+    Bd = fw[o:o + k * k].reshape((k, k))
+    o += k * k
+    delta = fw[o:o + k]
+    o += k
+    acc = fw[o:o + 36 * n].reshape((n, 6, 6))
+    o += 36 * n
+    work = fw[o:o + 36].reshape((6, 6))
+    exists = bw[0:2 * nj].reshape((nj, 2))
+    lower = bw[2 * nj:3 * nj]
+    active = bw[3 * nj:5 * nj].reshape((nj, 2))
+    bad = bw[5 * nj:7 * nj].reshape((nj, 2))
+    add = bw[7 * nj:9 * nj].reshape((nj, 2))
+    return (lrows, lr, sigma, mask_f, rhs, r, lim, d, imp, x1, xs, x0, Jaw, Jbw, Dinv_w,
+            L_w, Bd, delta, acc, work, exists, lower, active, bad, add, iw[0:k])
+
+
 @kernel
 def solve_world(T, layout, fpw, fcw, ra, rb, jt, twist, js, c_swing, twist_defined, broken, iinv, M, M_inv, x, q,
                 v, w, lam_lin, lam_ang, lam_limit, bias_rate, mass_scale, impulse_scale, use_bias, h, max_push_out,
                 max_angular_push_out, limits, schur, active_set_passes, refactor, S_E, S_mask, S_Ja, S_Jb, S_Dinv,
-                S_L, S_B):
+                S_L, S_B, fw, bw, iw):
     """One solve of the tree rows of one world, in place on the velocities
     v, w (N, 3) and the impulses λ (J, 3): the equality rows by the soft
     step and, with ``limits``, the limit rows by their active set
@@ -510,57 +578,50 @@ def solve_world(T, layout, fpw, fcw, ra, rb, jt, twist, js, c_swing, twist_defin
     with B = A⁻¹ on the limit rows, else factoring each pass). ``refactor``: the positions or
     the metric changed since the last solve, so the blocks and factors in
     the scratch (S_*) are rebuilt; otherwise they are reused.
-    bias_rate, mass_scale, impulse_scale (nj,): the softness of each joint."""
+    bias_rate, mass_scale, impulse_scale (nj,): the softness of each joint.
+    fw, bw, iw: the caller's work buffers (``solve_work``), reused by every
+    solve on its thread."""
     nj = T.joint.size
     N = v.shape[0]
     k = T.cand_joint.size
-    lrows = np.zeros((nj, 2, 3))
-    lr = np.zeros((nj, 2))
-    sigma = np.ones((nj, 2))
-    exists = np.zeros((nj, 2), dtype=np.bool_)
-    lower = np.zeros(nj, dtype=np.bool_)
+    (lrows, lr, sigma, mask_f, rhs, r, lim, d, imp, x1, xs, x0, Jaw, Jbw, Dinv_w, L_w, Bd, delta, acc, work, exists,
+     lower, active, bad, add, drop_idx) = _work_views(fw, bw, iw, nj, S_Dinv.shape[0], N, k)
+    for j in range(nj):
+        lower[j] = False
+        for s in range(2):
+            sigma[j, s] = 1.0
+            lr[j, s] = 0.0
+            exists[j, s] = False
+            for c in range(3):
+                lrows[j, s, c] = 0.0
+        for s in range(6):
+            lim[j, s] = 0.0
+            d[j, s] = 0.0
     if limits:
         limit_rows(T, jt, twist, js, c_swing, twist_defined, broken, iinv, w, lam_limit, h, use_bias,
                    max_angular_push_out, lrows, lr, sigma, exists, lower)
-    mask_f = np.empty((nj, 6))
     if refactor:
         blocks(T, fpw, ra, rb, broken, S_E, S_mask, S_Ja, S_Jb)
         if limits and schur:
             _with_slots(T, exists, lrows, S_mask, S_Ja, S_Jb, mask_f)
-            factor(layout, S_Ja, S_Jb, mask_f, M, M_inv, True, False, S_Dinv, S_L)
+            factor(layout, S_Ja, S_Jb, mask_f, M, M_inv, True, False, S_Dinv, S_L, acc, work)
             # B = A⁻¹ on the limit rows.
             rows_inverse(layout, T.cand_joint, T.cand_slot + 3, S_Dinv, S_L, S_B)
         elif not limits:
-            factor(layout, S_Ja, S_Jb, S_mask, M, M_inv, True, True, S_Dinv, S_L)
-    rhs = np.empty((nj, 6))
-    r = np.empty((nj, 6))
+            factor(layout, S_Ja, S_Jb, S_mask, M, M_inv, True, True, S_Dinv, S_L, acc, work)
     right_hand_side(T, S_E, S_mask, fpw, fcw, ra, rb, x, q, v, w, True, use_bias, bias_rate, max_push_out,
                     max_angular_push_out, r)
-    lim = np.zeros((nj, 6))
-    d = np.zeros((nj, 6))
-    imp = np.empty((N, 6))
-    x1 = np.empty((nj, 6))
-    xs = np.empty((nj, 6))
     if not limits:
         substitute_one(layout, S_Dinv, S_L, r, xs)
         _soft_impulses(T, xs, S_mask, lim, False, mass_scale, impulse_scale, lam_lin, lam_ang, d)
         _apply(T, S_Ja, S_Jb, d, iinv, lam_lin, lam_ang, v, w, imp)
         return
-    active = np.zeros((nj, 2), dtype=np.bool_)
     for j in range(nj):
         for s in range(2):
             active[j, s] = exists[j, s] and sigma[j, s] * lr[j, s] < 0
-    x0 = np.empty((nj, 6))
     if schur:
         _slot_rhs(r, lr, exists, rhs)
         substitute_one(layout, S_Dinv, S_L, rhs, x0)
-    Jaw = np.empty((nj, 6, 6))
-    Jbw = np.empty((nj, 6, 6))
-    Dinv_w = np.empty(S_Dinv.shape)
-    L_w = np.empty(S_L.shape)
-    Bd = np.empty((k, k))
-    delta = np.empty(k)
-    drop_idx = np.empty(k, dtype=np.int64)
     Ja_use, Jb_use = S_Ja, S_Jb
     for _ in range(active_set_passes):
         # x = A⁻¹ r over the equality rows and the active limit rows.
@@ -598,7 +659,7 @@ def solve_world(T, layout, fpw, fcw, ra, rb, jt, twist, js, c_swing, twist_defin
                         Jaw[j, p, qq] = S_Ja[j, p, qq]
                         Jbw[j, p, qq] = S_Jb[j, p, qq]
             _with_slots(T, active, lrows, S_mask, Jaw, Jbw, mask_f)
-            factor(layout, Jaw, Jbw, mask_f, M, M_inv, True, False, Dinv_w, L_w)
+            factor(layout, Jaw, Jbw, mask_f, M, M_inv, True, False, Dinv_w, L_w, acc, work)
             _slot_rhs(r, lr, active, rhs)
             substitute_one(layout, Dinv_w, L_w, rhs, xs)
             Ja_use, Jb_use = Jaw, Jbw
@@ -609,8 +670,6 @@ def solve_world(T, layout, fpw, fcw, ra, rb, jt, twist, js, c_swing, twist_defin
         # The limit rows after the impulses: lr + J_lim (Δω_b - Δω_a).
         body_impulses(T, Ja_use, Jb_use, d, imp)
         change = False
-        bad = np.zeros((nj, 2), dtype=np.bool_)
-        add = np.zeros((nj, 2), dtype=np.bool_)
         for j in range(nj):
             a, b = T.a[j], T.b[j]
             dwa = mat3_vec(iinv, a, (imp[a, 3], imp[a, 4], imp[a, 5]))
@@ -691,21 +750,23 @@ def solve_batch(T, layout, g, broken, iinv, M, M_inv, x, q, v, w, lam_lin, lam_a
     """``solve_world`` of every world (g: the JointGeometry, S: the TreeScratch; softness (W, nj))."""
     nw = v.shape[0]
     if nw < SERIAL_BELOW:
+        fw, bw, iw = solve_work(T.joint.size, S.Dinv.shape[1], v.shape[1], T.cand_joint.size)
         for wi in range(nw):
             solve_world(T, layout, g.fpw[wi], g.fcw[wi], g.ra[wi], g.rb[wi], g.jt[wi], g.twist[wi], g.js[wi],
                         g.c_swing[wi], g.twist_defined[wi], broken[wi], iinv[wi], M[wi], M_inv[wi], x[wi], q[wi],
                         v[wi], w[wi], lam_lin[wi], lam_ang[wi], lam_limit[wi], bias_rate[wi], mass_scale[wi],
                         impulse_scale[wi], use_bias, h, max_push_out, max_angular_push_out, limits, schur,
                         active_set_passes, refactor, S.E[wi], S.mask[wi], S.Ja[wi], S.Jb[wi], S.Dinv[wi], S.L[wi],
-                        S.B[wi])
+                        S.B[wi], fw, bw, iw)
     else:
         for wi in prange(nw):
+            fw, bw, iw = solve_work(T.joint.size, S.Dinv.shape[1], v.shape[1], T.cand_joint.size)
             solve_world(T, layout, g.fpw[wi], g.fcw[wi], g.ra[wi], g.rb[wi], g.jt[wi], g.twist[wi], g.js[wi],
                         g.c_swing[wi], g.twist_defined[wi], broken[wi], iinv[wi], M[wi], M_inv[wi], x[wi], q[wi],
                         v[wi], w[wi], lam_lin[wi], lam_ang[wi], lam_limit[wi], bias_rate[wi], mass_scale[wi],
                         impulse_scale[wi], use_bias, h, max_push_out, max_angular_push_out, limits, schur,
                         active_set_passes, refactor, S.E[wi], S.mask[wi], S.Ja[wi], S.Jb[wi], S.Dinv[wi], S.L[wi],
-                        S.B[wi])
+                        S.B[wi], fw, bw, iw)
 
 
 @parallel_kernel

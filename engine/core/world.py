@@ -53,7 +53,7 @@ from .jit import inlined_kernel, kernel
 from .joint_rows import _add_load_world, _equality_world, _limits_world
 from .joints import _geometry_world, _inertia_world, _passive_world
 from .joints import _warm_start_world as _joint_warm_start
-from .tree_solve import metric, solve_world
+from .tree_solve import metric, solve_work, solve_world
 from .vec import quat_integrate
 
 #: ``StepConstants.integrator`` codes.
@@ -174,10 +174,11 @@ class StateArrays(NamedTuple):
 # tuple of them counted a reference to every array in it at every call).
 
 @inlined_kernel
-def _contacts_warm_start(C, R, view, S, wi, substep, v, w):
+def _contacts_warm_start(C, R, view, S, wi, substep, v, w, afw):
     """The contact rows' warm start of world wi: the impulses of the last
     substep summed into the step's (restitution takes them back), then
-    applied again, the articulated rows' in contact space first."""
+    applied again, the articulated rows' in contact space first (afw: their
+    work buffer, ``articulated.solve_work``)."""
     if not C.on:
         return
     if substep > 0 and C.bouncy:
@@ -188,19 +189,20 @@ def _contacts_warm_start(C, R, view, S, wi, substep, v, w):
                 C.lam_t1_step[r, j] += R.lam_t1[r, j]
                 C.lam_t2_step[r, j] += R.lam_t2[r, j]
     if C.articulated and S.row_start[wi + 1] > S.row_start[wi]:
-        art._warm_start_world(view, S, wi, v, w)
+        art._warm_start_world(view, S, wi, v, w, afw)
     con._warm_start_world(R, C.order, C.world_start[wi], C.world_start[wi + 1], v, w)
 
 
 @inlined_kernel
-def _contacts_solve(C, R, view, S, p, ap, wi, x, q, v, w, use_bias, only_free):
+def _contacts_solve(C, R, view, S, p, ap, wi, x, q, v, w, use_bias, only_free, afw, abw):
     """One sweep of world wi's contact rows (``only_free``: those of unjointed
-    bodies), then, unless ``only_free``, its articulated rows."""
+    bodies), then, unless ``only_free``, its articulated rows (afw, abw:
+    their work buffers, ``articulated.solve_work``)."""
     if not C.on:
         return
     con._solve_world(R, C.order, C.world_start[wi], C.world_start[wi + 1], x, q, v, w, p, use_bias, only_free)
     if not only_free and C.articulated and S.row_start[wi + 1] > S.row_start[wi]:
-        art._solve_world(view, S, wi, x, q, v, w, ap, use_bias)
+        art._solve_world(view, S, wi, x, q, v, w, ap, use_bias, afw, abw)
 
 
 @inlined_kernel
@@ -219,12 +221,13 @@ def _joints_warm_start(Jt, J, g, wi, substep, s):
 
 
 @inlined_kernel
-def _joints_solve(Jt, J, T, layout, S, g, wi, s, c, use_bias, factored, unit):
+def _joints_solve(Jt, J, T, layout, S, g, wi, s, c, use_bias, factored, unit, fw, bw, iw):
     """One solve of world wi's joints: the equality rows (Gauss-Seidel, then
     the tree) in the biased solve and, with ``relax``, the relax solve; the
     Gauss-Seidel limit rows in every solve. ``factored``: the tree's factors
     hold the current positions; returns whether they do after the solve.
-    ``unit`` (3, nj): the relax solve's softness terms (0, 1, 0)."""
+    ``unit`` (3, nj): the relax solve's softness terms (0, 1, 0); fw, bw,
+    iw: the tree solve's work buffers (``tree_solve.solve_work``)."""
     if use_bias or Jt.relax:
         if Jt.eq_joints.size:
             soft = use_bias and not Jt.thesis
@@ -241,7 +244,7 @@ def _joints_solve(Jt, J, T, layout, S, g, wi, s, c, use_bias, factored, unit):
                         s.x[wi], s.q[wi], s.v[wi], s.w[wi], s.lam_lin[wi], s.lam_ang[wi], s.lam_limit[wi], terms[0],
                         terms[1], terms[2], use_bias, c.h, Jt.max_push, Jt.max_angular_push, Jt.limits, Jt.schur,
                         Jt.active_set_passes, not factored, S.E[wi], S.mask[wi], S.Ja[wi], S.Jb[wi], S.Dinv[wi],
-                        S.L[wi], S.B[wi])
+                        S.L[wi], S.B[wi], fw, bw, iw)
             factored = True
     if Jt.gs_limit.size:
         br = Jt.limit_soft[0] if use_bias else 0.0
@@ -302,6 +305,8 @@ def substeps(c, C, R, view, AS, p, ap, Jt, J, T, layout, TS, g, bodies, gravitat
                               np.empty((m, 3)), np.empty((m, 3)))
     qs, sq = np.empty((m, 4)), np.empty((m, 4))
     v1, w1 = np.empty((m, 3)), np.empty((m, 3))
+    fw, bw, iw = solve_work(T.joint.size, TS.Dinv.shape[1], n, T.cand_joint.size)
+    afw, abw = art.solve_work(AS, first, stop)
     for wi in range(first, stop):
         x, q, v, w = s.x[wi], s.q[wi], s.v[wi], s.w[wi]
         sb, broken = s.spring_broken[wi], s.broken[wi]
@@ -361,7 +366,7 @@ def substeps(c, C, R, view, AS, p, ap, Jt, J, T, layout, TS, g, bodies, gravitat
                     for part in range(2):
                         if (part == 0) == c.contacts_first:
                             if c.contacts:
-                                _contacts_warm_start(C, R, view, AS, wi, sub, v, w)
+                                _contacts_warm_start(C, R, view, AS, wi, sub, v, w, afw)
                         elif c.joints:
                             _joints_warm_start(Jt, J, g, wi, sub, s)
                 sweeps = c.iterations if use_bias else c.relax_iterations
@@ -371,9 +376,11 @@ def substeps(c, C, R, view, AS, p, ap, Jt, J, T, layout, TS, g, bodies, gravitat
                     for part in range(2):
                         if (part == 0) == c.contacts_first:
                             if c.contacts:
-                                _contacts_solve(C, R, view, AS, p, ap, wi, x, q, v, w, use_bias, only_free)
+                                _contacts_solve(C, R, view, AS, p, ap, wi, x, q, v, w, use_bias, only_free, afw,
+                                                abw)
                         elif c.joints and not only_free:
-                            factored = _joints_solve(Jt, J, T, layout, TS, g, wi, s, c, use_bias, factored, unit)
+                            factored = _joints_solve(Jt, J, T, layout, TS, g, wi, s, c, use_bias, factored, unit,
+                                                     fw, bw, iw)
 
 
 # ------------------------------------------------------------------ absent parts
