@@ -17,6 +17,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from .core.world import nonfinite
+
 
 @dataclass(frozen=True)
 class Event:
@@ -108,10 +110,8 @@ class State:
 
     def nonfinite_worlds(self) -> np.ndarray:
         """Indices of worlds with any NaN or infinite position or velocity."""
-        bad = np.zeros(self.num_worlds, dtype=bool)
-        for k in ("position", "orientation", "velocity", "angular_velocity"):
-            a = self.arrays[k]
-            bad |= ~np.isfinite(a).reshape(a.shape[0], -1).all(axis=1)
+        bad = np.empty(self.num_worlds, dtype=bool)
+        nonfinite(self.position, self.orientation, self.velocity, self.angular_velocity, bad)
         return np.flatnonzero(bad)
 
     @staticmethod

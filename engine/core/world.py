@@ -36,6 +36,7 @@ compiled code.
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import numpy as np
@@ -381,6 +382,23 @@ def substeps(c, C, R, view, AS, p, ap, Jt, J, T, layout, TS, g, bodies, gravitat
                         elif c.joints and not only_free:
                             factored = _joints_solve(Jt, J, T, layout, TS, g, wi, s, c, use_bias, factored, unit,
                                                      fw, bw, iw)
+
+
+# ------------------------------------------------------------------ the finite check
+@kernel
+def nonfinite(x, q, v, w, bad):
+    """bad (W,) bool: the worlds with a NaN or infinite position,
+    orientation, velocity or angular velocity (x, q, v, w (W, N, ...))."""
+    for wi in range(x.shape[0]):
+        ok = True
+        for i in range(x.shape[1]):
+            for k in range(3):
+                if not (math.isfinite(x[wi, i, k]) and math.isfinite(v[wi, i, k]) and math.isfinite(w[wi, i, k])):
+                    ok = False
+            for k in range(4):
+                if not math.isfinite(q[wi, i, k]):
+                    ok = False
+        bad[wi] = not ok
 
 
 # ------------------------------------------------------------------ absent parts
