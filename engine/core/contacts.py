@@ -360,18 +360,20 @@ def _warm_start_world(R, order, lo, hi, vel, angvel):
 def solve(R, order, world_start, pos, ori, vel, angvel, p, use_bias, only_free):
     """One sweep over every row (``only_free``: the rows of free bodies)."""
     if world_start.size - 1 < SERIAL_BELOW:
+        scratch = np.empty((6, 4))
         for w in range(world_start.size - 1):
             _solve_world(R, order, world_start[w], world_start[w + 1], pos[w], ori[w], vel[w], angvel[w], p, use_bias,
-                         only_free)
+                         only_free, scratch)
     else:
         for w in prange(world_start.size - 1):
             _solve_world(R, order, world_start[w], world_start[w + 1], pos[w], ori[w], vel[w], angvel[w], p, use_bias,
-                         only_free)
+                         only_free, np.empty((6, 4)))
 
 
 @kernel
-def _solve_world(R, order, lo, hi, pos, ori, vel, angvel, p, use_bias, only_free):
-    scratch = np.empty((6, 4))
+def _solve_world(R, order, lo, hi, pos, ori, vel, angvel, p, use_bias, only_free, scratch):
+    """One sweep over the rows order[lo:hi] of one world (``only_free``: those
+    of free bodies); scratch (6, 4): the rows' work."""
     for k in range(lo, hi):
         r = order[k]
         if only_free and not R.free[r]:

@@ -304,12 +304,14 @@ def solve_nodes(order, parent, Dinv, L, y):
 
 
 @kernel
-def substitute_one(layout, Dinv, L, r, x):
+def substitute_one(layout, Dinv, L, r, x, y):
     """x = (J M⁻¹ Jᵀ)⁻¹ r of one world for one right-hand side, r and x
-    (nj, 6): ``substitute`` of a single column."""
+    (nj, 6): ``substitute`` of a single column; y (n, 6): scratch."""
     nb = layout.n_bodies
     n = layout.order.size
-    y = np.zeros((n, 6))
+    for i in range(nb):
+        for s in range(6):
+            y[i, s] = 0.0
     for j in range(n - nb):
         for s in range(6):
             y[nb + j, s] = r[j, s]
@@ -376,22 +378,24 @@ def path_product(path, length, Z, at, Y, c, r):
 
 
 @kernel
-def rows_inverse(layout, row_joint, row_slot, Dinv, L, B):
+def rows_inverse(layout, row_joint, row_slot, slot_offset, Dinv, L, B, path, length, at, Y, Z, y):
     """B (k, k) = (J M⁻¹ Jᵀ)⁻¹ on the k rows (tree joint row_joint[c], slot
-    row_slot[c]), symmetric, from the factors of ``factor``: B_rc =
+    row_slot[c] + slot_offset), symmetric, from the factors of ``factor``: B_rc =
     -(F⁻¹ e_r)ᵀ D⁻¹ (F⁻¹ e_c) (the sign: x = -z on the joint rows), each
     unit row walked up its path (``walk_up``), each pair summed over the
     nodes the paths share (``path_product``): a few 6-vectors a pair instead
-    of a substitution of k columns over the whole tree."""
+    of a substitution of k columns over the whole tree. path, at (k, n),
+    length (k,) (int64), Y, Z (k, n, 6), y (6,): the walks' scratch
+    (``walks``), at refilled with -1 here."""
     nb = layout.n_bodies
-    n = layout.order.size
     k = row_joint.size
-    path, length, at, Y, Z = walks(k, n)
-    y = np.empty(6)
+    for c in range(k):
+        for i in range(at.shape[1]):
+            at[c, i] = -1
     for c in range(k):
         for s in range(6):
             y[s] = 0.0
-        y[row_slot[c]] = 1.0
+        y[row_slot[c] + slot_offset] = 1.0
         length[c] = walk_up(layout.parent, Dinv, L, nb + row_joint[c], y, path, at, Y, Z, c)
     for c in range(k):
         for r in range(c, k):

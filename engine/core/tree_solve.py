@@ -299,7 +299,7 @@ def _clamp_norm(a, limit):
 
 @kernel
 def limit_rows(T, jt, twist, js, c_swing, twist_defined, broken, iinv, w, lam_limit, h, use_bias,
-               max_angular_push_out, lrows, lr, sigma, exists, lower):
+               max_angular_push_out, lrows, lr, sigma, exists, lower, L):
     """The limit rows of one world's tree joints, after taking their
     accumulated impulses off the angular velocities ``w`` (N, 3) (and
     zeroing ``lam_limit`` (J, 3): lower, upper, swing), so that the active
@@ -310,9 +310,9 @@ def limit_rows(T, jt, twist, js, c_swing, twist_defined, broken, iinv, w, lam_li
     open; when violated the clamped rigid bias in the biased solve, none in
     the relax), sigma (nj, 2) the sign with σ λ ≥ 0 required, exists
     (nj, 2) and lower (nj,): the twist row is the lower bound's (the bound
-    the twist heads for by the substep's end)."""
+    the twist heads for by the substep's end). L (nj, 3): scratch, the
+    warm-started limit impulse of each joint."""
     nj = T.joint.size
-    L = np.empty((nj, 3))  # the warm-started limit impulse of each joint
     for j in range(nj):
         jj = T.joint[j]
         l0, l1, l2 = lam_limit[jj, 0], lam_limit[jj, 1], lam_limit[jj, 2]
@@ -426,12 +426,14 @@ def _soft_impulses(T, x, mask, lim, use_lim, mass_scale, impulse_scale, lam_lin,
 
 # ------------------------------------------------------------------ dense solve
 @kernel
-def solve_dense(A, b, n):
+def solve_dense(A, b, n, zero):
     """b[:n] = A[:n, :n]⁻¹ b[:n] by Gaussian elimination with partial
     pivoting, A overwritten. An unknown whose pivot is zero (degenerate
     rows: the matrix singular in floating point) is set to 0 and left out
-    of the elimination, the answer on the other rows; NaN propagates."""
-    zero = np.zeros(n, dtype=np.bool_)
+    of the elimination, the answer on the other rows; NaN propagates.
+    zero (n,) bool: scratch."""
+    for c in range(n):
+        zero[c] = False
     for c in range(n):
         p = c
         big = abs(A[c, c])
@@ -505,8 +507,9 @@ def solve_work(nj, n, N, k):
     """The work buffers (float64, bool, int64) of ``solve_world`` for nj tree
     joints, n tree nodes, N bodies and k limit rows: allocated once by a
     caller that solves many times, carved into arrays by ``_work_views``."""
-    floats = 130 * nj + 6 * N + 108 * n + k * k + k + 36
-    return np.empty(floats), np.empty(9 * nj, dtype=np.bool_), np.empty(k, dtype=np.int64)
+    floats = 133 * nj + 6 * N + 114 * n + k * k + k + 12 * k * n + 42
+    return (np.empty(floats), np.empty(9 * nj + k, dtype=np.bool_),
+            np.empty(2 * k + 2 * k * n, dtype=np.int64))
 
 
 @inlined_kernel
@@ -515,8 +518,11 @@ def _work_views(fw, bw, iw, nj, n, N, k):
     (uninitialised): lrows (nj, 2, 3), lr and sigma (nj, 2); mask_f, rhs, r,
     lim, d (nj, 6); imp (N, 6); x1, xs, x0 (nj, 6); Jaw, Jbw (nj, 6, 6);
     Dinv_w, L_w (n, 6, 6); Bd (k, k); delta (k,); ``factor``'s acc (n, 6, 6)
-    and work (6, 6); exists (nj, 2), lower (nj,), active, bad, add (nj, 2)
-    (bool); drop_idx (k,) (int64)."""
+    and work (6, 6); ``substitute_one``'s y (n, 6); ``limit_rows``' Lw
+    (nj, 3); ``rows_inverse``'s walks Yk, Zk (k, n, 6) and y6 (6,); exists
+    (nj, 2), lower (nj,), active, bad, add (nj, 2), ``solve_dense``'s zero
+    (k,) (bool); drop_idx (k,), the walks' length (k,), path and at (k, n)
+    (int64)."""
     o = 0
     lrows = fw[o:o + 6 * nj].reshape((nj, 2, 3))
     o += 6 * nj
@@ -557,13 +563,28 @@ def _work_views(fw, bw, iw, nj, n, N, k):
     acc = fw[o:o + 36 * n].reshape((n, 6, 6))
     o += 36 * n
     work = fw[o:o + 36].reshape((6, 6))
+    o += 36
+    ys = fw[o:o + 6 * n].reshape((n, 6))
+    o += 6 * n
+    Lw = fw[o:o + 3 * nj].reshape((nj, 3))
+    o += 3 * nj
+    Yk = fw[o:o + 6 * k * n].reshape((k, n, 6))
+    o += 6 * k * n
+    Zk = fw[o:o + 6 * k * n].reshape((k, n, 6))
+    o += 6 * k * n
+    y6 = fw[o:o + 6]
+    zero = bw[9 * nj:9 * nj + k]
+    length = iw[k:2 * k]
+    path = iw[2 * k:2 * k + k * n].reshape((k, n))
+    at = iw[2 * k + k * n:2 * k + 2 * k * n].reshape((k, n))
     exists = bw[0:2 * nj].reshape((nj, 2))
     lower = bw[2 * nj:3 * nj]
     active = bw[3 * nj:5 * nj].reshape((nj, 2))
     bad = bw[5 * nj:7 * nj].reshape((nj, 2))
     add = bw[7 * nj:9 * nj].reshape((nj, 2))
     return (lrows, lr, sigma, mask_f, rhs, r, lim, d, imp, x1, xs, x0, Jaw, Jbw, Dinv_w,
-            L_w, Bd, delta, acc, work, exists, lower, active, bad, add, iw[0:k])
+            L_w, Bd, delta, acc, work, ys, Lw, Yk, Zk, y6, exists, lower, active, bad, add, zero, iw[0:k], length,
+            path, at)
 
 
 @kernel
@@ -584,8 +605,9 @@ def solve_world(T, layout, fpw, fcw, ra, rb, jt, twist, js, c_swing, twist_defin
     nj = T.joint.size
     N = v.shape[0]
     k = T.cand_joint.size
-    (lrows, lr, sigma, mask_f, rhs, r, lim, d, imp, x1, xs, x0, Jaw, Jbw, Dinv_w, L_w, Bd, delta, acc, work, exists,
-     lower, active, bad, add, drop_idx) = _work_views(fw, bw, iw, nj, S_Dinv.shape[0], N, k)
+    (lrows, lr, sigma, mask_f, rhs, r, lim, d, imp, x1, xs, x0, Jaw, Jbw, Dinv_w, L_w, Bd, delta, acc, work, ys, Lw,
+     Yk, Zk, y6, exists, lower, active, bad, add, zero, drop_idx, length, path, at) = _work_views(
+        fw, bw, iw, nj, S_Dinv.shape[0], N, k)
     for j in range(nj):
         lower[j] = False
         for s in range(2):
@@ -599,20 +621,20 @@ def solve_world(T, layout, fpw, fcw, ra, rb, jt, twist, js, c_swing, twist_defin
             d[j, s] = 0.0
     if limits:
         limit_rows(T, jt, twist, js, c_swing, twist_defined, broken, iinv, w, lam_limit, h, use_bias,
-                   max_angular_push_out, lrows, lr, sigma, exists, lower)
+                   max_angular_push_out, lrows, lr, sigma, exists, lower, Lw)
     if refactor:
         blocks(T, fpw, ra, rb, broken, S_E, S_mask, S_Ja, S_Jb)
         if limits and schur:
             _with_slots(T, exists, lrows, S_mask, S_Ja, S_Jb, mask_f)
             factor(layout, S_Ja, S_Jb, mask_f, M, M_inv, True, False, S_Dinv, S_L, acc, work)
             # B = A⁻¹ on the limit rows.
-            rows_inverse(layout, T.cand_joint, T.cand_slot + 3, S_Dinv, S_L, S_B)
+            rows_inverse(layout, T.cand_joint, T.cand_slot, 3, S_Dinv, S_L, S_B, path, length, at, Yk, Zk, y6)
         elif not limits:
             factor(layout, S_Ja, S_Jb, S_mask, M, M_inv, True, True, S_Dinv, S_L, acc, work)
     right_hand_side(T, S_E, S_mask, fpw, fcw, ra, rb, x, q, v, w, True, use_bias, bias_rate, max_push_out,
                     max_angular_push_out, r)
     if not limits:
-        substitute_one(layout, S_Dinv, S_L, r, xs)
+        substitute_one(layout, S_Dinv, S_L, r, xs, ys)
         _soft_impulses(T, xs, S_mask, lim, False, mass_scale, impulse_scale, lam_lin, lam_ang, d)
         _apply(T, S_Ja, S_Jb, d, iinv, lam_lin, lam_ang, v, w, imp)
         return
@@ -621,7 +643,7 @@ def solve_world(T, layout, fpw, fcw, ra, rb, jt, twist, js, c_swing, twist_defin
             active[j, s] = exists[j, s] and sigma[j, s] * lr[j, s] < 0
     if schur:
         _slot_rhs(r, lr, exists, rhs)
-        substitute_one(layout, S_Dinv, S_L, rhs, x0)
+        substitute_one(layout, S_Dinv, S_L, rhs, x0, ys)
     Ja_use, Jb_use = S_Ja, S_Jb
     for _ in range(active_set_passes):
         # x = A⁻¹ r over the equality rows and the active limit rows.
@@ -640,14 +662,14 @@ def solve_world(T, layout, fpw, fcw, ra, rb, jt, twist, js, c_swing, twist_defin
                     for qq in range(nd):
                         Bd[p, qq] = S_B[cp, drop_idx[qq]]
                     delta[p] = -x0[T.cand_joint[cp], 3 + T.cand_slot[cp]]
-                solve_dense(Bd, delta, nd)
+                solve_dense(Bd, delta, nd, zero)
                 for j in range(nj):
                     for s in range(6):
                         rhs[j, s] = 0.0
                 for p in range(nd):
                     cp = drop_idx[p]
                     rhs[T.cand_joint[cp], 3 + T.cand_slot[cp]] = delta[p]
-                substitute_one(layout, S_Dinv, S_L, rhs, x1)
+                substitute_one(layout, S_Dinv, S_L, rhs, x1, ys)
                 for j in range(nj):
                     for s in range(6):
                         xs[j, s] = x0[j, s] + x1[j, s]
@@ -661,7 +683,7 @@ def solve_world(T, layout, fpw, fcw, ra, rb, jt, twist, js, c_swing, twist_defin
             _with_slots(T, active, lrows, S_mask, Jaw, Jbw, mask_f)
             factor(layout, Jaw, Jbw, mask_f, M, M_inv, True, False, Dinv_w, L_w, acc, work)
             _slot_rhs(r, lr, active, rhs)
-            substitute_one(layout, Dinv_w, L_w, rhs, xs)
+            substitute_one(layout, Dinv_w, L_w, rhs, xs, ys)
             Ja_use, Jb_use = Jaw, Jbw
         for j in range(nj):
             lim[j, 3] = 1.0 if active[j, 0] else 0.0
@@ -774,13 +796,15 @@ def limit_rows_batch(T, g, broken, iinv, w, lam_limit, h, use_bias, max_angular_
                      lower):
     """``limit_rows`` of every world (g: the JointGeometry)."""
     nw = w.shape[0]
+    nj = T.joint.size
     if nw < SERIAL_BELOW:
+        L = np.empty((nj, 3))
         for wi in range(nw):
             limit_rows(T, g.jt[wi], g.twist[wi], g.js[wi], g.c_swing[wi], g.twist_defined[wi], broken[wi], iinv[wi],
                        w[wi], lam_limit[wi], h, use_bias, max_angular_push_out, lrows[wi], lr[wi], sigma[wi],
-                       exists[wi], lower[wi])
+                       exists[wi], lower[wi], L)
     else:
         for wi in prange(nw):
             limit_rows(T, g.jt[wi], g.twist[wi], g.js[wi], g.c_swing[wi], g.twist_defined[wi], broken[wi], iinv[wi],
                        w[wi], lam_limit[wi], h, use_bias, max_angular_push_out, lrows[wi], lr[wi], sigma[wi],
-                       exists[wi], lower[wi])
+                       exists[wi], lower[wi], np.empty((nj, 3)))

@@ -195,13 +195,14 @@ def _contacts_warm_start(C, R, view, S, wi, substep, v, w, afw):
 
 
 @inlined_kernel
-def _contacts_solve(C, R, view, S, p, ap, wi, x, q, v, w, use_bias, only_free, afw, abw):
+def _contacts_solve(C, R, view, S, p, ap, wi, x, q, v, w, use_bias, only_free, cscratch, afw, abw):
     """One sweep of world wi's contact rows (``only_free``: those of unjointed
-    bodies), then, unless ``only_free``, its articulated rows (afw, abw:
-    their work buffers, ``articulated.solve_work``)."""
+    bodies; cscratch (6, 4): their work), then, unless ``only_free``, its
+    articulated rows (afw, abw: their work buffers, ``articulated.solve_work``)."""
     if not C.on:
         return
-    con._solve_world(R, C.order, C.world_start[wi], C.world_start[wi + 1], x, q, v, w, p, use_bias, only_free)
+    con._solve_world(R, C.order, C.world_start[wi], C.world_start[wi + 1], x, q, v, w, p, use_bias, only_free,
+                     cscratch)
     if not only_free and C.articulated and S.row_start[wi + 1] > S.row_start[wi]:
         art._solve_world(view, S, wi, x, q, v, w, ap, use_bias, afw, abw)
 
@@ -308,6 +309,7 @@ def substeps(c, C, R, view, AS, p, ap, Jt, J, T, layout, TS, g, bodies, gravitat
     v1, w1 = np.empty((m, 3)), np.empty((m, 3))
     fw, bw, iw = solve_work(T.joint.size, TS.Dinv.shape[1], n, T.cand_joint.size)
     afw, abw = art.solve_work(AS, first, stop)
+    cscratch = np.empty((6, 4))
     for wi in range(first, stop):
         x, q, v, w = s.x[wi], s.q[wi], s.v[wi], s.w[wi]
         sb, broken = s.spring_broken[wi], s.broken[wi]
@@ -377,8 +379,8 @@ def substeps(c, C, R, view, AS, p, ap, Jt, J, T, layout, TS, g, bodies, gravitat
                     for part in range(2):
                         if (part == 0) == c.contacts_first:
                             if c.contacts:
-                                _contacts_solve(C, R, view, AS, p, ap, wi, x, q, v, w, use_bias, only_free, afw,
-                                                abw)
+                                _contacts_solve(C, R, view, AS, p, ap, wi, x, q, v, w, use_bias, only_free,
+                                                cscratch, afw, abw)
                         elif c.joints and not only_free:
                             factored = _joints_solve(Jt, J, T, layout, TS, g, wi, s, c, use_bias, factored, unit,
                                                      fw, bw, iw)
