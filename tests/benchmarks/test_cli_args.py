@@ -116,6 +116,14 @@ def test_throughput_bad_numbers_are_usage_errors(capsys, argv):
     assert "argument " + next(a for a in reversed(argv) if a.startswith("--")) in err
 
 
+@pytest.mark.parametrize("argv", [["--worlds", "0"], ["--seconds", "nan"], ["--threads", "0"], ["--top", "-1"]])
+def test_profile_step_bad_numbers_are_usage_errors(capsys, argv):
+    from benchmarks import profile_step
+
+    err = usage_error(capsys, profile_step.parse_args, argv)
+    assert f"argument {argv[0]}" in err
+
+
 def test_throughput_threads_default_to_one_and_all_cores():
     cores = numba.config.NUMBA_NUM_THREADS
     assert throughput.parse_args([]).threads == sorted({1, cores})
