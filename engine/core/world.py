@@ -50,7 +50,7 @@ from .integrate import (
     runge_kutta4_world,
     semi_implicit_velocities,
 )
-from .jit import inlined_kernel, kernel
+from .jit import kernel
 from .joint_rows import _add_load_world, _equality_world, _limits_world
 from .joints import _geometry_world, _inertia_world, _passive_world
 from .joints import _warm_start_world as _joint_warm_start
@@ -170,118 +170,6 @@ class StateArrays(NamedTuple):
     motor: np.ndarray  # (W, A) or (W, 0) N m
 
 
-# ------------------------------------------------------------------ constraint sets
-# Each helper takes the parts it reads as arguments of their own (unpacking a
-# tuple of them counted a reference to every array in it at every call).
-
-@inlined_kernel
-def _contacts_warm_start(C, R, view, S, wi, substep, v, w, afw):
-    """The contact rows' warm start of world wi: the impulses of the last
-    substep summed into the step's (restitution takes them back), then
-    applied again, the articulated rows' in contact space first (afw: their
-    work buffer, ``articulated.solve_work``)."""
-    if not C.on:
-        return
-    if substep > 0 and C.bouncy:
-        for k in range(C.row_start[wi], C.row_start[wi + 1]):
-            r = C.world_rows[k]
-            for j in range(4):
-                C.lam_n_step[r, j] += R.lam_n[r, j]
-                C.lam_t1_step[r, j] += R.lam_t1[r, j]
-                C.lam_t2_step[r, j] += R.lam_t2[r, j]
-    if C.articulated and S.row_start[wi + 1] > S.row_start[wi]:
-        art._warm_start_world(view, S, wi, v, w, afw)
-    con._warm_start_world(R, C.order, C.world_start[wi], C.world_start[wi + 1], v, w)
-
-
-@inlined_kernel
-def _contacts_solve(C, R, view, S, p, ap, wi, x, q, v, w, use_bias, only_free, cscratch, afw, abw):
-    """One sweep of world wi's contact rows (``only_free``: those of unjointed
-    bodies; cscratch (6, 4): their work), then, unless ``only_free``, its
-    articulated rows (afw, abw: their work buffers, ``articulated.solve_work``)."""
-    if not C.on:
-        return
-    con._solve_world(R, C.order, C.world_start[wi], C.world_start[wi + 1], x, q, v, w, p, use_bias, only_free,
-                     cscratch)
-    if not only_free and C.articulated and S.row_start[wi + 1] > S.row_start[wi]:
-        art._solve_world(view, S, wi, x, q, v, w, ap, use_bias, afw, abw)
-
-
-@inlined_kernel
-def _joints_warm_start(Jt, J, g, wi, substep, s):
-    """The joints' warm start of world wi: the last substep's impulses into
-    the step's load (breaking), the load before this substep's solve
-    (geometric stiffness), then every stored impulse applied again."""
-    if substep > 0 and Jt.breakable:
-        _add_load_world(s.lam_lin[wi], s.lam_ang[wi], s.lam_limit[wi], Jt.lin_sum[wi], Jt.ang_sum[wi])
-    if Jt.tree and Jt.geometric:
-        lam = s.lam_lin[wi]
-        for j in range(lam.shape[0]):
-            Jt.load_before[wi, j] = np.sqrt(lam[j, 0] * lam[j, 0] + lam[j, 1] * lam[j, 1] + lam[j, 2] * lam[j, 2])
-    _joint_warm_start(J, Jt.warm_order, Jt.iinv[wi], Jt.inv_mass, g, wi, s.lam_lin[wi], s.lam_ang[wi],
-                      s.lam_limit[wi], s.v[wi], s.w[wi])
-
-
-@inlined_kernel
-def _joints_solve(Jt, J, T, layout, S, g, wi, s, c, use_bias, factored, unit, fw, bw, iw):
-    """One solve of world wi's joints: the equality rows (Gauss-Seidel, then
-    the tree) in the biased solve and, with ``relax``, the relax solve; the
-    Gauss-Seidel limit rows in every solve. ``factored``: the tree's factors
-    hold the current positions; returns whether they do after the solve.
-    ``unit`` (3, nj): the relax solve's softness terms (0, 1, 0); fw, bw,
-    iw: the tree solve's work buffers (``tree_solve.solve_work``)."""
-    if use_bias or Jt.relax:
-        if Jt.eq_joints.size:
-            soft = use_bias and not Jt.thesis
-            br = Jt.eq_soft[0] if soft else 0.0
-            ms = Jt.eq_soft[1] if soft else 1.0
-            isc = Jt.eq_soft[2] if soft else 0.0
-            _equality_world(J, Jt.eq_joints, Jt.eq_kinds, Jt.iinv[wi], Jt.inv_mass, g, wi, s.x[wi], s.v[wi],
-                            s.w[wi], s.lam_lin[wi], s.lam_ang[wi], s.broken[wi], br, ms, isc, Jt.max_push,
-                            Jt.max_angular_push)
-        if Jt.tree:
-            terms = Jt.tree_soft[:, wi] if use_bias else unit
-            solve_world(T, layout, g.fpw[wi], g.fcw[wi], g.ra[wi], g.rb[wi], g.jt[wi], g.twist[wi], g.js[wi],
-                        g.c_swing[wi], g.twist_defined[wi], s.broken[wi], Jt.iinv[wi], Jt.M[wi], Jt.M_inv[wi],
-                        s.x[wi], s.q[wi], s.v[wi], s.w[wi], s.lam_lin[wi], s.lam_ang[wi], s.lam_limit[wi], terms[0],
-                        terms[1], terms[2], use_bias, c.h, Jt.max_push, Jt.max_angular_push, Jt.limits, Jt.schur,
-                        Jt.active_set_passes, not factored, S.E[wi], S.mask[wi], S.Ja[wi], S.Jb[wi], S.Dinv[wi],
-                        S.L[wi], S.B[wi], fw, bw, iw)
-            factored = True
-    if Jt.gs_limit.size:
-        br = Jt.limit_soft[0] if use_bias else 0.0
-        ms = Jt.limit_soft[1] if use_bias else 1.0
-        isc = Jt.limit_soft[2] if use_bias else 0.0
-        if use_bias and Jt.zone_on:
-            zone, zs = Jt.zone[wi], Jt.zone_soft
-        else:
-            zone, zs = Jt.no_zone[wi], Jt.limit_soft
-        _limits_world(J, Jt.gs_limit, Jt.twist_row, Jt.swing_row, Jt.lower, Jt.upper, Jt.iinv[wi], g, wi,
-                      s.w[wi], s.lam_limit[wi], s.broken[wi], c.h, use_bias, br, ms, isc, zone, zs[0], zs[1], zs[2],
-                      Jt.margin, Jt.max_angular_push)
-    return factored
-
-
-@inlined_kernel
-def _positions_moved(Jt, J, T, g, wi, s, c, warmed):
-    """The bodies moved and turned: world wi's joint geometry, world inverse
-    inertias and tree metric at the new positions, with geometric stiffness
-    from the joints' load through the substep: once a warm start has recorded
-    |λ| before the biased solve (``warmed``), the smaller of that and |λ|."""
-    _geometry_world(J, s.x[wi], s.q[wi], g, wi)
-    _inertia_world(s.q[wi], Jt.inv_inertia, Jt.rot[wi], Jt.iinv_raw[wi])
-    if Jt.tree_metric:
-        metric(T, Jt.rot[wi], Jt.iinv_raw[wi], Jt.geo_joint, Jt.geo_parent, Jt.geo_child, Jt.n_tree_loaded,
-               Jt.weight[wi], s.lam_lin[wi], Jt.load_before[wi], Jt.geometric and warmed, g.ra[wi], g.rb[wi], c.h, Jt.cap,
-               Jt.geometric, Jt.iinv[wi], Jt.M[wi], Jt.M_inv[wi])
-    else:
-        src, dst = Jt.iinv_raw[wi], Jt.iinv[wi]
-        for i in range(src.shape[0]):
-            for r in range(3):
-                for k in range(3):
-                    dst[i, r, k] = src[i, r, k]
-
-
 # ------------------------------------------------------------------ the worlds
 @kernel
 def substeps(c, C, R, view, AS, p, ap, Jt, J, T, layout, TS, g, bodies, gravitation, springs, motors, damping, s,
@@ -320,6 +208,7 @@ def substeps(c, C, R, view, AS, p, ap, Jt, J, T, layout, TS, g, bodies, gravitat
                                w, c.h)
             for phase in range(2):
                 use_bias = phase == 0
+                moved = False  # the positions moved in this phase
                 if use_bias:
                     # The integrator's motion before the biased solve.
                     if c.integrator == SYMPLECTIC:
@@ -328,16 +217,12 @@ def substeps(c, C, R, view, AS, p, ap, Jt, J, T, layout, TS, g, bodies, gravitat
                     elif c.integrator == EULER:
                         explicit_euler_world(bodies, gravitation, springs, motors, x, q, v, w, sb, broken,
                                              s.cforce[wi], s.ctorque[wi], s.motor[wi], force, torque, c.h)
-                        if c.joints:
-                            _positions_moved(Jt, J, T, g, wi, s, c, sub > 0)
-                            factored = False
+                        moved = True
                     else:
                         runge_kutta4_world(bodies, gravitation, springs, motors, x, q, v, w, sb, broken,
                                            s.cforce[wi], s.ctorque[wi], s.motor[wi], force, torque, xs, qs, vs, ws,
                                            sx, sq, sv, sw, c.h)
-                        if c.joints:
-                            _positions_moved(Jt, J, T, g, wi, s, c, sub > 0)
-                            factored = False
+                        moved = True
                         for i in range(n):
                             for k in range(3):
                                 v1[i, k] = v[i, k]
@@ -357,33 +242,119 @@ def substeps(c, C, R, view, AS, p, ap, Jt, J, T, layout, TS, g, bodies, gravitat
                                                 (w[i, 0] - w1[i, 0], w[i, 1] - w1[i, 1], w[i, 2] - w1[i, 2]), c.h)
                             for k in range(4):
                                 q[i, k] = qi[k]
-                    if c.joints:
-                        _positions_moved(Jt, J, T, g, wi, s, c, True)
-                        factored = False
+                    moved = True
+                if moved and c.joints:
+                    # The bodies moved and turned: the joint geometry, world inverse
+                    # inertias and tree metric at the new positions, with geometric
+                    # stiffness from the joints' load through the substep: once a warm
+                    # start has recorded |λ| before the biased solve (after the first
+                    # substep's, or in the relax phase), the smaller of that and |λ|.
+                    # (The velocity effects above read none of these.)
+                    warmed = sub > 0 or not use_bias
+                    _geometry_world(J, x, q, g, wi)
+                    _inertia_world(q, Jt.inv_inertia, Jt.rot[wi], Jt.iinv_raw[wi])
+                    if Jt.tree_metric:
+                        metric(T, Jt.rot[wi], Jt.iinv_raw[wi], Jt.geo_joint, Jt.geo_parent, Jt.geo_child,
+                               Jt.n_tree_loaded, Jt.weight[wi], s.lam_lin[wi], Jt.load_before[wi],
+                               Jt.geometric and warmed, g.ra[wi], g.rb[wi], c.h, Jt.cap, Jt.geometric, Jt.iinv[wi],
+                               Jt.M[wi], Jt.M_inv[wi])
+                    else:
+                        _copy_inertias(Jt.iinv_raw[wi], Jt.iinv[wi])
+                    factored = False
                 if not (c.contacts or c.joints):
                     continue
                 # The solve: with its bias, each set's warm start, then the sweeps
                 # over the sets in their order; without, the relax sweeps and the
-                # free bodies' extra contact passes.
+                # free bodies' extra contact passes. (The sets' code is written here
+                # once, not in helpers: an inlined helper's tuple arguments cost two
+                # reference counts per array at every call.)
                 if use_bias:
                     for part in range(2):
                         if (part == 0) == c.contacts_first:
-                            if c.contacts:
-                                _contacts_warm_start(C, R, view, AS, wi, sub, v, w, afw)
+                            if c.contacts and C.on:
+                                # The impulses of the last substep summed into the step's
+                                # (restitution takes them back), then applied again, the
+                                # articulated rows' in contact space first.
+                                if sub > 0 and C.bouncy:
+                                    for k in range(C.row_start[wi], C.row_start[wi + 1]):
+                                        r = C.world_rows[k]
+                                        for j in range(4):
+                                            C.lam_n_step[r, j] += R.lam_n[r, j]
+                                            C.lam_t1_step[r, j] += R.lam_t1[r, j]
+                                            C.lam_t2_step[r, j] += R.lam_t2[r, j]
+                                if C.articulated and AS.row_start[wi + 1] > AS.row_start[wi]:
+                                    art._warm_start_world(view, AS, wi, v, w, afw)
+                                con._warm_start_world(R, C.order, C.world_start[wi], C.world_start[wi + 1], v, w)
                         elif c.joints:
-                            _joints_warm_start(Jt, J, g, wi, sub, s)
+                            # The last substep's impulses into the step's load (breaking),
+                            # the load before this substep's solve (geometric stiffness),
+                            # then every stored impulse applied again.
+                            if sub > 0 and Jt.breakable:
+                                _add_load_world(s.lam_lin[wi], s.lam_ang[wi], s.lam_limit[wi], Jt.lin_sum[wi],
+                                                Jt.ang_sum[wi])
+                            if Jt.tree and Jt.geometric:
+                                lam = s.lam_lin[wi]
+                                for j in range(lam.shape[0]):
+                                    Jt.load_before[wi, j] = np.sqrt(lam[j, 0] * lam[j, 0] + lam[j, 1] * lam[j, 1]
+                                                                    + lam[j, 2] * lam[j, 2])
+                            _joint_warm_start(J, Jt.warm_order, Jt.iinv[wi], Jt.inv_mass, g, wi, s.lam_lin[wi],
+                                              s.lam_ang[wi], s.lam_limit[wi], v, w)
                 sweeps = c.iterations if use_bias else c.relax_iterations
                 free_passes = 0 if use_bias or not c.contacts else c.free_relax_passes
                 for it in range(sweeps + free_passes):
                     only_free = it >= sweeps
                     for part in range(2):
                         if (part == 0) == c.contacts_first:
-                            if c.contacts:
-                                _contacts_solve(C, R, view, AS, p, ap, wi, x, q, v, w, use_bias, only_free,
-                                                cscratch, afw, abw)
-                        elif c.joints and not only_free:
-                            factored = _joints_solve(Jt, J, T, layout, TS, g, wi, s, c, use_bias, factored, unit,
-                                                     fw, bw, iw)
+                            if c.contacts and C.on:
+                                # One sweep of the world's contact rows (only_free: those of unjointed
+                                # bodies), then, unless only_free, its articulated rows.
+                                con._solve_world(R, C.order, C.world_start[wi], C.world_start[wi + 1], x, q, v, w, p,
+                                                 use_bias, only_free, cscratch)
+                                if not only_free and C.articulated and AS.row_start[wi + 1] > AS.row_start[wi]:
+                                    art._solve_world(view, AS, wi, x, q, v, w, ap, use_bias, afw, abw)
+                        elif c.joints and not only_free and (use_bias or Jt.relax):
+                            # The joints: the Gauss-Seidel equality rows, then the tree (its
+                            # factors rebuilt once the positions moved), in the biased solve
+                            # and, with relax, the relax solve.
+                            if Jt.eq_joints.size:
+                                soft = use_bias and not Jt.thesis
+                                br = Jt.eq_soft[0] if soft else 0.0
+                                ms = Jt.eq_soft[1] if soft else 1.0
+                                isc = Jt.eq_soft[2] if soft else 0.0
+                                _equality_world(J, Jt.eq_joints, Jt.eq_kinds, Jt.iinv[wi], Jt.inv_mass, g, wi, x, v,
+                                                w, s.lam_lin[wi], s.lam_ang[wi], broken, br, ms, isc, Jt.max_push,
+                                                Jt.max_angular_push)
+                            if Jt.tree:
+                                terms = Jt.tree_soft[:, wi] if use_bias else unit
+                                solve_world(T, layout, g.fpw[wi], g.fcw[wi], g.ra[wi], g.rb[wi], g.jt[wi], g.twist[wi],
+                                            g.js[wi], g.c_swing[wi], g.twist_defined[wi], broken, Jt.iinv[wi], Jt.M[wi],
+                                            Jt.M_inv[wi], x, q, v, w, s.lam_lin[wi], s.lam_ang[wi], s.lam_limit[wi],
+                                            terms[0], terms[1], terms[2], use_bias, c.h, Jt.max_push,
+                                            Jt.max_angular_push, Jt.limits, Jt.schur, Jt.active_set_passes,
+                                            not factored, TS.E[wi], TS.mask[wi], TS.Ja[wi], TS.Jb[wi], TS.Dinv[wi],
+                                            TS.L[wi], TS.B[wi], fw, bw, iw)
+                                factored = True
+                        if (part == 0) != c.contacts_first and c.joints and not only_free and Jt.gs_limit.size:
+                            # The Gauss-Seidel limit rows, in every solve.
+                            br = Jt.limit_soft[0] if use_bias else 0.0
+                            ms = Jt.limit_soft[1] if use_bias else 1.0
+                            isc = Jt.limit_soft[2] if use_bias else 0.0
+                            if use_bias and Jt.zone_on:
+                                zone, zs = Jt.zone[wi], Jt.zone_soft
+                            else:
+                                zone, zs = Jt.no_zone[wi], Jt.limit_soft
+                            _limits_world(J, Jt.gs_limit, Jt.twist_row, Jt.swing_row, Jt.lower, Jt.upper, Jt.iinv[wi],
+                                          g, wi, w, s.lam_limit[wi], broken, c.h, use_bias, br, ms, isc, zone, zs[0],
+                                          zs[1], zs[2], Jt.margin, Jt.max_angular_push)
+
+
+@kernel
+def _copy_inertias(src, dst):
+    """dst (N, 3, 3) = src."""
+    for i in range(src.shape[0]):
+        for r in range(3):
+            for k in range(3):
+                dst[i, r, k] = src[i, r, k]
 
 
 # ------------------------------------------------------------------ the finite check
