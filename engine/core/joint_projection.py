@@ -292,12 +292,12 @@ def metric(T, q, M_tree, mass, weight, row_lo, row_hi, row_order, ca, cb, dyn_a,
         for r in range(6):
             for c in range(6):
                 M_inv[i, r, c] = 0.0
-    work = np.empty((6, 6))
+    work = np.empty((1, 6, 6))
     for kk in range(nb):
         for r in range(6):
             for c in range(6):
-                work[r, c] = M[kk, r, c]
-        inverse6_into(work, M_inv[T.bodies[kk]])
+                work[0, r, c] = M[kk, r, c]
+        inverse6_into(work, 0, M_inv, T.bodies[kk])
 
 
 @kernel

@@ -65,107 +65,111 @@ class TreeLayout(NamedTuple):
 
 # ------------------------------------------------------------ small dense blocks
 @kernel
-def inverse6_into(a, out):
-    """out = a⁻¹ of a 6x6 matrix by Gauss-Jordan elimination with partial
-    pivoting (the row with the largest |entry| of the column as pivot); ``a``
-    is overwritten. A zero pivot (singular in floating point) fills out with
+def inverse6_into(a, ia, out, o):
+    """out[o] = a[ia]⁻¹ of a 6x6 matrix by Gauss-Jordan elimination with
+    partial pivoting (the row with the largest |entry| of the column as
+    pivot); a[ia] is overwritten (blocks indexed, not taken as views: a view
+    passed to a call costs reference counts). A zero pivot (singular in floating point) fills out with
     NaN; NaN entries propagate."""
     for i in range(6):
         for j in range(6):
-            out[i, j] = 0.0
-        out[i, i] = 1.0
+            out[o, i, j] = 0.0
+        out[o, i, i] = 1.0
     for c in range(6):
         p = c
-        big = abs(a[c, c])
+        big = abs(a[ia, c, c])
         for r in range(c + 1, 6):
-            v = abs(a[r, c])
+            v = abs(a[ia, r, c])
             if v > big:
                 big = v
                 p = r
         if big == 0.0:
             for i in range(6):
                 for j in range(6):
-                    out[i, j] = np.nan
+                    out[o, i, j] = np.nan
             return
         if p != c:
             for j in range(6):
-                t = a[c, j]
-                a[c, j] = a[p, j]
-                a[p, j] = t
-                t = out[c, j]
-                out[c, j] = out[p, j]
-                out[p, j] = t
-        piv = a[c, c]
+                t = a[ia, c, j]
+                a[ia, c, j] = a[ia, p, j]
+                a[ia, p, j] = t
+                t = out[o, c, j]
+                out[o, c, j] = out[o, p, j]
+                out[o, p, j] = t
+        piv = a[ia, c, c]
         for j in range(c + 1, 6):
-            a[c, j] = a[c, j] / piv
+            a[ia, c, j] = a[ia, c, j] / piv
         for j in range(6):
-            out[c, j] = out[c, j] / piv
-        a[c, c] = 1.0
+            out[o, c, j] = out[o, c, j] / piv
+        a[ia, c, c] = 1.0
         for r in range(6):
             if r == c:
                 continue
-            f = a[r, c]
+            f = a[ia, r, c]
             if f != 0.0:
                 for j in range(c + 1, 6):
-                    a[r, j] -= f * a[c, j]
+                    a[ia, r, j] -= f * a[ia, c, j]
                 for j in range(6):
-                    out[r, j] -= f * out[c, j]
-            a[r, c] = 0.0
+                    out[o, r, j] -= f * out[o, c, j]
+            a[ia, r, c] = 0.0
 
 
 @kernel
-def sym3_inverse_into(a, out):
-    """out[:3, :3] = a[:3, :3]⁻¹ of a symmetric matrix by the adjugate,
-    reading its upper triangle (0 if singular), the cofactors and
+def sym3_inverse_into(a, ia, out, o):
+    """out[o, :3, :3] = a[ia, :3, :3]⁻¹ of a symmetric matrix by the
+    adjugate, reading its upper triangle (0 if singular), the cofactors and
     determinant summed as :func:`engine.math3d.sym3_inverse` sums them."""
-    i00, i01, i02, i11, i12, i22 = sym3_inverse(a[0, 0], a[0, 1], a[0, 2], a[1, 1], a[1, 2], a[2, 2])
-    out[0, 0], out[0, 1], out[0, 2] = i00, i01, i02
-    out[1, 0], out[1, 1], out[1, 2] = i01, i11, i12
-    out[2, 0], out[2, 1], out[2, 2] = i02, i12, i22
+    i00, i01, i02, i11, i12, i22 = sym3_inverse(a[ia, 0, 0], a[ia, 0, 1], a[ia, 0, 2], a[ia, 1, 1], a[ia, 1, 2],
+                                                a[ia, 2, 2])
+    out[o, 0, 0], out[o, 0, 1], out[o, 0, 2] = i00, i01, i02
+    out[o, 1, 0], out[o, 1, 1], out[o, 1, 2] = i01, i11, i12
+    out[o, 2, 0], out[o, 2, 1], out[o, 2, 2] = i02, i12, i22
 
 
 @kernel
-def mul_ab_into(A, B, out):
-    """out = A B of 6x6 blocks, each entry summed over i = 0..5 in order
-    (the loop over a row's entries innermost, independent of each other)."""
+def mul_ab_into(A, ia, B, ib, out, o):
+    """out[o] = A[ia] B[ib] of 6x6 blocks, each entry summed over i = 0..5 in
+    order (the loop over a row's entries innermost, independent of each
+    other)."""
     for r in range(6):
         for c in range(6):
-            out[r, c] = 0.0
+            out[o, r, c] = 0.0
         for i in range(6):
-            a = A[r, i]
+            a = A[ia, r, i]
             for c in range(6):
-                out[r, c] += a * B[i, c]
+                out[o, r, c] += a * B[ib, i, c]
 
 
 @kernel
-def mul_atb_into(A, B, out):
-    """out = Aᵀ B of 6x6 blocks, summed as ``mul_ab_into``."""
+def mul_atb_into(A, ia, B, ib, out, o):
+    """out[o] = A[ia]ᵀ B[ib] of 6x6 blocks, summed as ``mul_ab_into``."""
     for r in range(6):
         for c in range(6):
-            out[r, c] = 0.0
+            out[o, r, c] = 0.0
         for i in range(6):
-            a = A[i, r]
+            a = A[ia, i, r]
             for c in range(6):
-                out[r, c] += a * B[i, c]
+                out[o, r, c] += a * B[ib, i, c]
 
 
 @kernel
-def mul_abt_into(A, B, out):
-    """out = A Bᵀ of 6x6 blocks, each entry a dot product of two rows summed in order."""
+def mul_abt_into(A, ia, B, ib, out, o):
+    """out[o] = A[ia] B[ib]ᵀ of 6x6 blocks, each entry a dot product of two
+    rows summed in order."""
     for r in range(6):
         for c in range(6):
             s = 0.0
             for i in range(6):
-                s += A[r, i] * B[c, i]
-            out[r, c] = s
+                s += A[ia, r, i] * B[ib, c, i]
+            out[o, r, c] = s
 
 
 # ------------------------------------------------------------ one world
 @kernel
 def factor_scratch(n):
-    """The scratch (acc (n, 6, 6), work (6, 6)) of ``factor`` over n nodes,
-    allocated once by a caller that factors many times."""
-    return np.empty((n, 6, 6)), np.empty((6, 6))
+    """The scratch (acc (n, 6, 6), work (1, 6, 6)) of ``factor`` over n
+    nodes, allocated once by a caller that factors many times."""
+    return np.empty((n, 6, 6)), np.empty((1, 6, 6))
 
 
 @kernel
@@ -177,7 +181,9 @@ def factor(layout, Ja, Jb, mask, M, M_inv, use_leaf_inv, ball_rows, Dinv, L, acc
     (kg, kg·m²) and, with ``use_leaf_inv``, M_inv its inverse (the leaf
     bodies' pivots); ``ball_rows``: the ball joints' angular rows are empty,
     so their pivots take the closed form. L of a root is 0. acc (n, 6, 6)
-    and work (6, 6): the caller's scratch (see ``factor_scratch``)."""
+    and work (1, 6, 6): the caller's scratch (see ``factor_scratch``).
+    Blocks are indexed, not taken as views (a view passed to a call costs
+    reference counts)."""
     nb = layout.n_bodies
     n = layout.order.size
     # acc: Σ_children J_pᵀ D_j⁻¹ J_p of a body node, J_c D_c⁻¹ J_cᵀ of a joint node.
@@ -187,65 +193,65 @@ def factor(layout, Ja, Jb, mask, M, M_inv, use_leaf_inv, ball_rows, Dinv, L, acc
                 acc[k, r, c] = 0.0
     for k in range(n):
         node = layout.order[k]
-        Di = Dinv[node]
         p = layout.parent[node]
         if node < nb:
             if use_leaf_inv and layout.leaf[node]:
                 for r in range(6):
                     for c in range(6):
-                        Di[r, c] = M_inv[node, r, c]
+                        Dinv[node, r, c] = M_inv[node, r, c]
             else:
-                Mb, A = M[node], acc[node]
                 for r in range(6):
                     for c in range(6):
-                        work[r, c] = Mb[r, c] - A[r, c]
-                inverse6_into(work, Di)
-            Ln = L[node]
+                        work[0, r, c] = M[node, r, c] - acc[node, r, c]
+                inverse6_into(work, 0, Dinv, node)
             if p < 0:
                 for r in range(6):
                     for c in range(6):
-                        Ln[r, c] = 0.0
+                        L[node, r, c] = 0.0
                 continue
             j = p - nb
-            Jc = Jb[j] if layout.child_is_b[j] else Ja[j]
             # L_b = D_b⁻¹ J_cᵀ; the parent joint's J_c D_b⁻¹ J_cᵀ = J_c L_b.
-            mul_abt_into(Di, Jc, Ln)
-            mul_ab_into(Jc, Ln, acc[p])
+            if layout.child_is_b[j]:
+                mul_abt_into(Dinv, node, Jb, j, L, node)
+                mul_ab_into(Jb, j, L, node, acc, p)
+            else:
+                mul_abt_into(Dinv, node, Ja, j, L, node)
+                mul_ab_into(Ja, j, L, node, acc, p)
         else:
             j = node - nb
-            A = acc[node]
             if ball_rows and layout.ball[j]:
                 # blockdiag(D[:3, :3], -I): the point rows' 3x3 block and -1 on the empty rows.
                 for r in range(3):
                     for c in range(3):
-                        work[r, c] = -A[r, c]
-                    work[r, r] += mask[j, r] - 1.0
+                        work[0, r, c] = -acc[node, r, c]
+                    work[0, r, r] += mask[j, r] - 1.0
                 for r in range(6):
                     for c in range(6):
-                        Di[r, c] = 0.0
-                sym3_inverse_into(work, Di)
+                        Dinv[node, r, c] = 0.0
+                sym3_inverse_into(work, 0, Dinv, node)
                 for r in range(3, 6):
-                    Di[r, r] = -1.0
+                    Dinv[node, r, r] = -1.0
             else:
                 for r in range(6):
                     for c in range(6):
-                        work[r, c] = -A[r, c]
-                    work[r, r] += mask[j, r] - 1.0
-                inverse6_into(work, Di)
-            Ln = L[node]
+                        work[0, r, c] = -acc[node, r, c]
+                    work[0, r, r] += mask[j, r] - 1.0
+                inverse6_into(work, 0, Dinv, node)
             if p < 0:
                 for r in range(6):
                     for c in range(6):
-                        Ln[r, c] = 0.0
+                        L[node, r, c] = 0.0
                 continue
-            Jp = Ja[j] if layout.child_is_b[j] else Jb[j]
             # L_j = D_j⁻¹ J_p; the parent body's pivot loses J_pᵀ D_j⁻¹ J_p = J_pᵀ L_j.
-            mul_ab_into(Di, Jp, Ln)
-            mul_atb_into(Jp, Ln, work)
-            Ap = acc[p]
+            if layout.child_is_b[j]:
+                mul_ab_into(Dinv, node, Ja, j, L, node)
+                mul_atb_into(Ja, j, L, node, work, 0)
+            else:
+                mul_ab_into(Dinv, node, Jb, j, L, node)
+                mul_atb_into(Jb, j, L, node, work, 0)
             for r in range(6):
                 for c in range(6):
-                    Ap[r, c] += work[r, c]
+                    acc[p, r, c] += work[0, r, c]
 
 
 @kernel

@@ -164,7 +164,6 @@ def metric(T, rot, iinv, geo_joint, geo_parent, geo_child, n_tree_loaded, weight
                             if p == q:
                                 K += rn * rn
                             G[body, p, q] += g * K
-        inv = np.empty((3, 3))
         for k in range(nb):
             body = T.bodies[k]
             Gb = G[body]
@@ -176,10 +175,7 @@ def metric(T, rot, iinv, geo_joint, geo_parent, geo_child, n_tree_loaded, weight
                 for c in range(3):
                     I[k, r, c] = I[k, r, c] + Gb[r, c] * s
             if trG > 0.0:
-                sym3_inverse_into(I[k], inv)
-                for r in range(3):
-                    for c in range(3):
-                        iinv_out[body, r, c] = inv[r, c]
+                sym3_inverse_into(I, k, iinv_out, body)
     for k in range(nb):
         body = T.bodies[k]
         m, im = T.mass[k], T.inv_mass[body]
@@ -518,7 +514,7 @@ def _work_views(fw, bw, iw, nj, n, N, k):
     (uninitialised): lrows (nj, 2, 3), lr and sigma (nj, 2); mask_f, rhs, r,
     lim, d (nj, 6); imp (N, 6); x1, xs, x0 (nj, 6); Jaw, Jbw (nj, 6, 6);
     Dinv_w, L_w (n, 6, 6); Bd (k, k); delta (k,); ``factor``'s acc (n, 6, 6)
-    and work (6, 6); ``substitute_one``'s y (n, 6); ``limit_rows``' Lw
+    and work (1, 6, 6); ``substitute_one``'s y (n, 6); ``limit_rows``' Lw
     (nj, 3); ``rows_inverse``'s walks Yk, Zk (k, n, 6) and y6 (6,); exists
     (nj, 2), lower (nj,), active, bad, add (nj, 2), ``solve_dense``'s zero
     (k,) (bool); drop_idx (k,), the walks' length (k,), path and at (k, n)
@@ -562,7 +558,7 @@ def _work_views(fw, bw, iw, nj, n, N, k):
     o += k
     acc = fw[o:o + 36 * n].reshape((n, 6, 6))
     o += 36 * n
-    work = fw[o:o + 36].reshape((6, 6))
+    work = fw[o:o + 36].reshape((1, 6, 6))
     o += 36
     ys = fw[o:o + 6 * n].reshape((n, 6))
     o += 6 * n
