@@ -50,10 +50,12 @@ kernel = numba.njit(cache=True, fastmath=False, error_model="numpy", nogil=True)
 #: ``kernel`` for a helper called only from other kernels, inlined into its
 #: callers by numba (``inline="always"``): no wrappers for calls from
 #: Python (for a helper taking many tuples of arrays they cost seconds of
-#: compile time each), and no call: a call to a compiled function counts a
+#: compile time each) and no call. A call to a compiled function counts a
 #: reference to each array it is passed, on entry and exit (two atomic
-#: operations each), so a helper taking tuples of arrays, called in a loop,
-#: spends more on the counts than on its work.
+#: operations each); an inlined helper still counts each array of a tuple
+#: it is passed, when the tuple is bound to its argument, so a helper
+#: called in a loop takes arrays, not tuples of them (or its code is
+#: written at its one call site).
 inlined_kernel = numba.njit(cache=True, fastmath=False, error_model="numpy", nogil=True, no_cpython_wrapper=True,
                             no_cfunc_wrapper=True, inline="always")
 parallel_kernel = numba.njit(cache=True, fastmath=False, error_model="numpy", nogil=True, parallel=True)
