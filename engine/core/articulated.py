@@ -460,9 +460,9 @@ def _solve_world(R, S, w, pos, ori, vel, angvel, prm, use_bias, fw, bw):
     soft = use_bias and not prm.thesis
     sep, bias, gain, isc = fw[0:n], fw[n:2 * n], fw[2 * n:3 * n], fw[3 * n:4 * n]
     v_close, s_close, u_before = fw[4 * n:5 * n], fw[5 * n:6 * n], fw[6 * n:7 * n]
-    u, lam, start, sweep_start = fw[7 * n:7 * n + k], fw[7 * n + k:7 * n + 2 * k], fw[7 * n + 2 * k:7 * n + 3 * k], \
-        fw[7 * n + 3 * k:7 * n + 4 * k]
-    y = fw[7 * n + 4 * k:7 * n + 4 * k + 6 * S.order.size].reshape((S.order.size, 6))
+    c = 7 * n  # then the columns' u, lam, start, sweep_start (k each), then y (n nodes, 6)
+    u, lam, start, sweep_start = fw[c:c + k], fw[c + k:c + 2 * k], fw[c + 2 * k:c + 3 * k], fw[c + 3 * k:c + 4 * k]
+    y = fw[c + 4 * k:c + 4 * k + 6 * S.order.size].reshape((S.order.size, 6))
     loaded = bw[0:n]
     for p in range(n):
         isc[p] = 0.0

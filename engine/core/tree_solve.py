@@ -496,7 +496,6 @@ def _slot_rhs(r, lr, on, rhs):
             rhs[j, s] = val
 
 
-
 # ------------------------------------------------------------------ work buffers
 @kernel
 def solve_work(nj, n, N, k):
