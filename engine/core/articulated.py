@@ -44,7 +44,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .contacts import separation
-from .jit import SERIAL_BELOW, kernel, parallel_kernel, prange
+from .jit import SERIAL_BELOW, allocating_kernel, kernel, parallel_kernel, prange
 from .tree import factor, factor_scratch, path_product, solve_nodes, walk_up, walks
 from .tree_solve import blocks
 from .vec import cross
@@ -133,7 +133,7 @@ def _minimum(a, b):
 
 
 # ------------------------------------------------------------------ layout (all worlds)
-@kernel
+@allocating_kernel
 def layout(world_rows, world_start, a_dyn, b_dyn, b, jointed, valid, off_tree):
     """The packing of a step's articulated columns: of the contact rows by
     world (``ContactRows.world_rows``, ``row_start``: world by world, in
@@ -187,7 +187,7 @@ def _zero_rows(y):
             y[i, c] = 0.0
 
 
-@kernel
+@allocating_kernel
 def solve_work(S, first, stop):
     """The work buffers (float64, bool) of ``_solve_world`` and
     ``_warm_start_world`` for the worlds first..stop-1 (room for the most
@@ -201,7 +201,7 @@ def solve_work(S, first, stop):
 
 
 # ------------------------------------------------------------------ response (one world)
-@kernel
+@allocating_kernel
 def _response_world(R, S, T, layout, fpw, ra, rb, broken, M_inv, w):
     """The factors, J, body, A, m and the finite flag of world w
     (``ArticulatedArrays``), from the step's ``ContactRowArrays`` R, the
@@ -493,7 +493,8 @@ def _solve_world(R, S, w, pos, ori, vel, angvel, prm, use_bias, fw, bw):
         v_close[p] = R.vn_close[r, s]
         s_close[p] = R.s_close[r, s]
     for _ in range(prm.sweeps):
-        sweep_start[:] = lam
+        for i in range(k):
+            sweep_start[i] = lam[i]
         _sweep(S, w, u, lam, sweep_start, gain, bias, isc, soft, u_before)
         for p in range(n):
             if not loaded[p] and lam[3 * p] > 0.0:
@@ -527,7 +528,7 @@ def solve(R, S, pos, ori, vel, angvel, prm, use_bias):
 
 
 # ------------------------------------------------------------------ restitution (one world)
-@kernel
+@allocating_kernel
 def _bounce_world(R, S, w, vel, angvel, bounce, target):
     """The points of world w marked in ``bounce`` (rows, 4): their normal
     impulses grow (λ_n >= 0) until each one's separating speed is its

@@ -41,7 +41,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .collide.world import gather_rows
-from .jit import SERIAL_BELOW, SERIAL_ROWS_BELOW, kernel, parallel_kernel, prange
+from .jit import SERIAL_BELOW, SERIAL_ROWS_BELOW, allocating_kernel, kernel, parallel_kernel, prange
 from .vec import add, cross, dot, load3, load4, mat3_vec, quat_to_matrix, rotate, rotate_inv, scale, sub
 
 IMPACT_SWEEPS = 16  # at most this many sweeps of impacts (a row of n balls needs about n/2)
@@ -277,7 +277,7 @@ def _bounce_row(R, r, vel, angvel, held, target):
         _apply(R, r, j, scale(value - lam, n), vel, angvel)
 
 
-@kernel
+@allocating_kernel
 def _impact_row(R, r, vel, angvel, loaded, pending, first_target, threshold):
     """One impact on row r if a loaded point approaches: targets
     v_n' = e |v_n| (a point's first impact: from its closing speed before
@@ -424,7 +424,7 @@ def _mark(R, r, marked):
         marked[R.b[r]] = True
 
 
-@kernel
+@allocating_kernel
 def _impacts_world(R, order, lo, hi, vel, angvel, seed, loaded, bounce, first_target, undo_n, undo_t1, undo_t2,
                    lam_n_start, threshold, num_bodies):
     """Free bodies of one world: the rows an impact can reach from the
@@ -647,7 +647,7 @@ def gather(keep, normal, point, separation, valid, normal_impulse, friction_impu
     return bouncy
 
 
-@kernel
+@allocating_kernel
 def rows_by_world(w, num_worlds):
     """The rows grouped by world, each world's in row order, and where each
     world's rows start ((num_worlds + 1,)): a stable counting sort."""
@@ -664,7 +664,7 @@ def rows_by_world(w, num_worlds):
     return rows, start
 
 
-@kernel
+@allocating_kernel
 def color_in_order(seq, key_a, key_b, dyn_a, dyn_b, num_keys, first_fit, color):
     """Colour the rows ``seq`` (row indices in priority order, first first)
     so that no two rows of a colour share a moving key (a (world, body));
@@ -733,7 +733,7 @@ def _point_or_zero(point, valid, r, j):
     return (0.0, 0.0, 0.0)
 
 
-@kernel
+@allocating_kernel
 def _height_order(rows, lo, hi, point, valid, gravity):
     """The rows rows[lo:hi] highest first against ``gravity`` (their valid
     points' mean height; ties in row order)."""
@@ -758,7 +758,7 @@ def _height_order(rows, lo, hi, point, valid, gravity):
     return out
 
 
-@kernel
+@allocating_kernel
 def _color_world(R, rows, lo, hi, point, gravity, num_bodies, greedy, color):
     """Colour world's rows rows[lo:hi] (keys: the bodies of the world): in
     row order, or with ``greedy`` top down and first fit."""
@@ -783,7 +783,7 @@ def color_rows(R, num_worlds, num_bodies, point, gravity, greedy, color):
     return rows, start
 
 
-@kernel
+@allocating_kernel
 def sweep_order(w, color, num_worlds):
     """The sweep order of the rows with a colour (color ≥ 0): by world, then
     colour, then row; and where each world's rows start in it ((W + 1,))."""
@@ -881,7 +881,7 @@ def restitution_targets(R, gravity_n, jointed, threshold, h, lam_n_step, lam_t1_
     return any_bounce, any_held, any_free
 
 
-@kernel
+@allocating_kernel
 def _project_world(R, rows, lo, hi, slop, pos, ori):
     """``project_positions`` of one world's rows rows[lo:hi] (row order): every
     row's depth from the positions before any move, then the a sides' moves

@@ -1,7 +1,9 @@
 """The numba decorators every kernel is compiled with, and the thread count.
 
-``kernel`` compiles a function for one world (or a helper of one);
-``parallel_kernel`` a loop over worlds with ``prange``. Both cache their
+``kernel`` compiles a function for one world (or a helper of one) that
+allocates nothing, without numba's reference counting;
+``allocating_kernel`` one that allocates or returns arrays;
+``parallel_kernel`` a loop over worlds with ``prange``. All cache their
 machine code next to the source (``cache=True``), keep IEEE semantics
 (``fastmath=False``: no reassociation, no contraction into fused
 multiply-adds, so a result never depends on how a loop was vectorised) and
@@ -46,7 +48,14 @@ if "NUMBA_THREADING_LAYER" not in os.environ and "NUMBA_THREADING_LAYER_PRIORITY
     numba.config.THREADING_LAYER_PRIORITY = ["omp", "tbb", "workqueue"]
     numba.config.THREADING_LAYER = "default"
 
-kernel = numba.njit(cache=True, fastmath=False, error_model="numpy", nogil=True)
+#: A kernel allocates nothing (its scratch comes from its caller) and so is
+#: compiled without numba's reference counting (``_nrt=False``): passing an
+#: array or taking a view of one costs no atomic count. It may return
+#: scalars and tuples of them, never an array.
+kernel = numba.njit(cache=True, fastmath=False, error_model="numpy", nogil=True, _nrt=False)
+#: A kernel that allocates arrays or returns them (or calls one that does):
+#: numba's reference counting frees them.
+allocating_kernel = numba.njit(cache=True, fastmath=False, error_model="numpy", nogil=True)
 #: ``kernel`` for a helper called only from other kernels, inlined into its
 #: callers by numba (``inline="always"``): no wrappers for calls from
 #: Python (for a helper taking many tuples of arrays they cost seconds of

@@ -38,7 +38,7 @@ import math
 
 import numpy as np
 
-from .jit import SERIAL_BELOW, kernel, parallel_kernel, prange
+from .jit import SERIAL_BELOW, allocating_kernel, kernel, parallel_kernel, prange
 from .tree import factor, factor_scratch, inverse6_into, substitute
 from .tree_solve import blocks, body_impulses, position_errors, right_hand_side
 from .vec import (
@@ -108,7 +108,7 @@ def _pairwise_block(a, lo, n):
     return s
 
 
-@kernel
+@allocating_kernel
 def _pairwise(a, lo, n):
     """Σ a[lo:lo + n] by numpy's pairwise summation (``pairwise_sum`` of
     numpy's add.reduce on a contiguous run): up to 128 terms by
@@ -162,7 +162,7 @@ def frames(T, J, x, q, fpw, fcw, ra, rb):
 
 
 # ------------------------------------------------------------------ one world
-@kernel
+@allocating_kernel
 def beyond_slop(T, J, use, lin_slop, x, q, broken):
     """Whether a used (``use`` (nj,)), unbroken joint of the rows ``T`` has
     its anchors apart by more than its linear slop ``lin_slop`` (nj,) m, or
@@ -188,7 +188,7 @@ def beyond_slop(T, J, use, lin_slop, x, q, broken):
     return False
 
 
-@kernel
+@allocating_kernel
 def merit(T, J, keep, lin_slop, x, q, broken, fpw, fcw, ra, rb, E, mask, Ja, Jb, C, sq):
     """The tree rows at positions x, q: blocks E, mask, Ja, Jb (as
     ``tree_solve.blocks``) and C (nj, 6), the position errors of the kept
@@ -236,7 +236,7 @@ def _add_point(P, body, lever, normal, k):
             P[body, r, c] += ku * u[c]
 
 
-@kernel
+@allocating_kernel
 def metric(T, q, M_tree, mass, weight, row_lo, row_hi, row_order, ca, cb, dyn_a, dyn_b, la, lb, cn, valid, sep,
            m_lo, m_hi, m_body, m_lever, m_normal, M, M_inv):
     """The projection's metric of one world: M (nb, 6, 6) = the tree bodies'
@@ -315,7 +315,7 @@ def _exp_turn(q, omega):
     return quat_normalize(quat_mul(dq, q))
 
 
-@kernel
+@allocating_kernel
 def project(T, layout, J, keep, lin_slop, x, q, broken, M, M_inv, passes):
     """At most ``passes`` Gauss-Newton passes on one world's positions x
     (N, 3) and orientations q (N, 4), in place, in the metric M (nb, 6, 6),
@@ -431,7 +431,7 @@ def project(T, layout, J, keep, lin_slop, x, q, broken, M, M_inv, passes):
     return err
 
 
-@kernel
+@allocating_kernel
 def project_world(T, layout, J, keep, lin_slop, x, q, broken, M_tree, mass, weight, row_lo, row_hi, row_order, ca,
                   cb, dyn_a, dyn_b, la, lb, cn, valid, sep, m_lo, m_hi, m_body, m_lever, m_normal, passes):
     """``metric`` then ``project`` of one world; returns its merit at the end (m)."""
@@ -443,7 +443,7 @@ def project_world(T, layout, J, keep, lin_slop, x, q, broken, M_tree, mass, weig
     return project(T, layout, J, keep, lin_slop, x, q, broken, M, M_inv, passes)
 
 
-@kernel
+@allocating_kernel
 def _merit_world(T, J, keep, lin_slop, x, q, broken):
     """``merit`` of one world with its own scratch."""
     nj, nJ = T.joint.size, J.kind.size
@@ -452,7 +452,7 @@ def _merit_world(T, J, keep, lin_slop, x, q, broken):
                  np.empty((nj, 6, 6)), np.empty((nj, 6)), np.empty(3 * nj))
 
 
-@kernel
+@allocating_kernel
 def _project_one(T, layout, J, w, keep, lin_slop, x, q, broken, M_tree, mass, weight, row_start, row_order, ca, cb,
                  dyn_a, dyn_b, la, lb, cn, valid, sep, m_start, m_body, m_lever, m_normal, passes, err, i):
     err[i] = project_world(T, layout, J, keep, lin_slop[w], x[w], q[w], broken[w], M_tree[w], mass, weight,
@@ -460,12 +460,12 @@ def _project_one(T, layout, J, w, keep, lin_slop, x, q, broken, M_tree, mass, we
                            m_start[w], m_start[w + 1], m_body, m_lever, m_normal, passes)
 
 
-@kernel
+@allocating_kernel
 def _beyond_one(T, J, w, use, lin_slop, x, q, broken, out, i):
     out[i] = beyond_slop(T, J, use, lin_slop[w], x[w], q[w], broken[w])
 
 
-@kernel
+@allocating_kernel
 def _merit_one(T, J, w, keep, lin_slop, x, q, broken, out, i):
     out[i] = _merit_world(T, J, keep, lin_slop[w], x[w], q[w], broken[w])
 
@@ -517,7 +517,7 @@ def project_batch(T, layout, J, worlds, keep, lin_slop, x, q, broken, M_tree, ma
                          m_normal, passes, err, i)
 
 
-@kernel
+@allocating_kernel
 def _metric_one(T, w, q, M_tree, mass, weight, row_start, row_order, ca, cb, dyn_a, dyn_b, la, lb, cn, valid, sep,
                 m_start, m_body, m_lever, m_normal, M, M_inv, i):
     metric(T, q[w], M_tree[w], mass, weight, row_start[w], row_start[w + 1], row_order, ca, cb, dyn_a, dyn_b, la,

@@ -28,7 +28,7 @@ import numpy as np
 
 from .collide.broadphase import body_bounds, boxes_overlap
 from .collide.narrowphase import narrow_world
-from .jit import SERIAL_BELOW, kernel, parallel_kernel, prange
+from .jit import SERIAL_BELOW, allocating_kernel, kernel, parallel_kernel, prange
 from .vec import load3, load4, rotate_inv, sub
 
 #: m: the least excess over the depth that moves a body (a body moved out
@@ -138,7 +138,7 @@ def _move_world(k, w, offset, pair_a, pair_b, dynamic, position, orientation, no
                 pos[i, c] += shift[i, c]
 
 
-@kernel
+@allocating_kernel
 def _move_worlds(lo, hi, ks, worlds, offsets, pair_a, pair_b, dynamic, position, orientation, normal, point, valid,
                  excess, deep, out_world, out_body, out_lever, out_normal):
     N = position.shape[1]
@@ -168,7 +168,7 @@ def move(ks, worlds, offsets, pair_a, pair_b, dynamic, position, orientation, no
                          valid, excess, deep, out_world, out_body, out_lever, out_normal)
 
 
-@kernel
+@allocating_kernel
 def merge(first_world, first_body, first_lever, first_normal, then_world, then_body, then_lever, then_normal,
           num_bodies):
     """The points of two rounds of moves as one, each sorted by world: a

@@ -48,7 +48,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .jit import SERIAL_BELOW, kernel, parallel_kernel, prange
+from .jit import SERIAL_BELOW, allocating_kernel, kernel, parallel_kernel, prange
 from .vec import sym3_inverse
 
 
@@ -165,7 +165,7 @@ def mul_abt_into(A, ia, B, ib, out, o):
 
 
 # ------------------------------------------------------------ one world
-@kernel
+@allocating_kernel
 def factor_scratch(n):
     """The scratch (acc (n, 6, 6), work (1, 6, 6)) of ``factor`` over n
     nodes, allocated once by a caller that factors many times."""
@@ -254,7 +254,7 @@ def factor(layout, Ja, Jb, mask, M, M_inv, use_leaf_inv, ball_rows, Dinv, L, acc
                     acc[p, r, c] += work[0, r, c]
 
 
-@kernel
+@allocating_kernel
 def substitute(layout, Dinv, L, R, X):
     """X = (J M⁻¹ Jᵀ)⁻¹ R of one world, R and X (nj, 6, k), through the
     factors of ``factor``: each column one ``solve_nodes`` with its
@@ -327,7 +327,7 @@ def substitute_one(layout, Dinv, L, r, x, y):
             x[j, s] = -y[nb + j, s]
 
 
-@kernel
+@allocating_kernel
 def walks(k, n):
     """Room for k walks of ``walk_up`` over a tree of n nodes: (path (k, n),
     length (k,), at (k, n) all -1, Y (k, n, 6), Z (k, n, 6))."""

@@ -42,7 +42,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .jit import SERIAL_BELOW, inlined_kernel, kernel, parallel_kernel, prange
+from .jit import SERIAL_BELOW, allocating_kernel, inlined_kernel, kernel, parallel_kernel, prange
 from .tree import factor, rows_inverse, substitute_one, sym3_inverse_into
 from .vec import (
     add,
@@ -109,7 +109,7 @@ def empty_scratch(W, nj, n, k) -> TreeScratch:
 
 
 # ------------------------------------------------------------------ metric
-@kernel
+@allocating_kernel
 def metric(T, rot, iinv, geo_joint, geo_parent, geo_child, n_tree_loaded, weight, lam_lin, load_before,
            use_load_before, ra, rb, h, cap, use_geometric, iinv_out, M, M_inv):
     """The tree bodies' metric M and its inverse M_inv (nb, 6, 6) of one world.
@@ -497,7 +497,7 @@ def _slot_rhs(r, lr, on, rhs):
 
 
 # ------------------------------------------------------------------ work buffers
-@kernel
+@allocating_kernel
 def solve_work(nj, n, N, k):
     """The work buffers (float64, bool, int64) of ``solve_world`` for nj tree
     joints, n tree nodes, N bodies and k limit rows: allocated once by a

@@ -50,7 +50,7 @@ from .integrate import (
     runge_kutta4_world,
     semi_implicit_velocities,
 )
-from .jit import kernel
+from .jit import allocating_kernel, kernel
 from .joint_rows import _add_load_world, _equality_world, _limits_world
 from .joints import _geometry_world, _inertia_world, _passive_world
 from .joints import _warm_start_world as _joint_warm_start
@@ -171,7 +171,7 @@ class StateArrays(NamedTuple):
 
 
 # ------------------------------------------------------------------ the worlds
-@kernel
+@allocating_kernel
 def substeps(c, C, R, view, AS, p, ap, Jt, J, T, layout, TS, g, bodies, gravitation, springs, motors, damping, s,
              first, stop):
     """Every substep of the steps of worlds first..stop-1, one world after
