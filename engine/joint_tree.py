@@ -174,11 +174,15 @@ class _TreeSolver(_Rows):
         self.num_bodies = model.num_bodies
         has_child = np.zeros(t.n_nodes, dtype=bool)
         has_child[t.node_parent[t.node_parent >= 0]] = True
+        joint_child = np.zeros(t.n_nodes - nb, dtype=np.int64)  # each joint node's child body node
+        for node in range(nb):
+            if t.node_parent[node] >= nb:
+                joint_child[t.node_parent[node] - nb] = node
         # The static tree for the factorisation kernels (engine.core.tree).
         self.layout = tree_kernels.TreeLayout(
             order=t.order, parent=t.node_parent.astype(np.int64), n_bodies=int(nb),
             leaf=np.ascontiguousarray(~has_child[:nb]), ball=np.ascontiguousarray(self.kind == BALL),
-            child_is_b=np.ascontiguousarray(self.child_is_b, dtype=bool))
+            child_is_b=np.ascontiguousarray(self.child_is_b, dtype=bool), joint_child=joint_child)
         self.limits = False
         self.exact_loop = None  # (articulations + 1,) bool: closed by loops solved with the tree (JointSet)
         self.loop_bodies = np.zeros(model.num_bodies, dtype=bool)  # (N,): bodies of those articulations (JointSet)
@@ -260,8 +264,7 @@ class _TreeSolver(_Rows):
         """The solve's ``TreeScratch`` for W worlds (kept between steps)."""
         S = self._scratch
         if S is None or S.mask.shape[0] != W:
-            S = self._scratch = tree_solve.empty_scratch(W, self.joints.size, self.t.n_nodes,
-                                                         self.limit_candidates[0].size)
+            S = self._scratch = tree_solve.empty_scratch(W, self.joints.size, self.t.n_nodes)
             self._factored = None
         return S
 

@@ -245,7 +245,7 @@ def _response_world(R, S, T, layout, fpw, ra, rb, broken, M_inv, w):
             for x in range(6):
                 y[x] = S.J[c, x]
             i = c - lo
-            length[i] = walk_up(S.parent, Dinv, L, S.node[b], y, path, at, Y, Zp, i)
+            length[i] = walk_up(S.parent, Dinv, L, S.node[b], y, -1, y, path, at, Y, Zp, i)
     # A[r, i] = J_r Z J_iᵀ, symmetric; m = 1 / A_ii.
     a0 = S.a_start[w]
     finite = True

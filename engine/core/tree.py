@@ -61,6 +61,7 @@ class TreeLayout(NamedTuple):
     leaf: np.ndarray  # (nb,) bool: body nodes without a child joint (pivot M_b)
     ball: np.ndarray  # (nj,) bool: ball joints (no angular rows: the closed-form pivot)
     child_is_b: np.ndarray  # (nj,) bool: the joint's side b is its tree child body (else side a)
+    joint_child: np.ndarray  # (nj,) int64: the body node of each joint's tree child
 
 
 # ------------------------------------------------------------ small dense blocks
@@ -330,24 +331,30 @@ def substitute_one(layout, Dinv, L, r, x, y):
 @allocating_kernel
 def walks(k, n):
     """Room for k walks of ``walk_up`` over a tree of n nodes: (path (k, n),
-    length (k,), at (k, n) all -1, Y (k, n, 6), Z (k, n, 6))."""
-    return (np.empty((k, n), dtype=np.int64), np.empty(k, dtype=np.int64), np.full((k, n), -1, dtype=np.int64),
+    length (k,), at (k, n), Y (k, n, 6), Z (k, n, 6))."""
+    return (np.empty((k, n), dtype=np.int64), np.empty(k, dtype=np.int64), np.empty((k, n), dtype=np.int64),
             np.empty((k, n, 6)), np.empty((k, n, 6)))
 
 
 @kernel
-def walk_up(parent, Dinv, L, node, y, path, at, Y, Z, c):
-    """The forward substitution F⁻¹ e of a right-hand side y (6,) on one
-    node, for the factors of ``factor`` ([M Jᵀ; J 0] = F D Fᵀ, F unit
-    block-triangular along the tree): non-zero only on the path from the
-    node to its root, one child a node, so a walk up the path
-    (y_parent = -L_nodeᵀ y_node). Walk c's: the path's nodes go to
-    ``path[c]`` (n,), each node's place on it to ``at[c]`` (n,) (the others
-    left as they are), F⁻¹ e and D⁻¹ F⁻¹ e on it to Y[c] and Z[c] (n, 6); y
-    is overwritten. Returns the path's length. (Rows are indexed in place,
-    not taken as views: a view costs two atomic reference counts.)"""
+def walk_up(parent, Dinv, L, node, y, inject_at, inject, path, at, Y, Z, c):
+    """The forward substitution F⁻¹ e of a right-hand side e, y (6,) on one
+    node plus ``inject`` (6,) on the node ``inject_at`` (-1: none) of the
+    path above it, for the factors of ``factor`` ([M Jᵀ; J 0] = F D Fᵀ, F
+    unit block-triangular along the tree): non-zero only on the path from
+    the node to its root, one child a node, so a walk up the path
+    (y_parent = e_parent - L_nodeᵀ y_node). Walk c's: the path's nodes go to
+    ``path[c]`` (n,), each node's place on it to ``at[c]`` (n,), which the
+    walk first fills with -1, F⁻¹ e and D⁻¹ F⁻¹ e on it to Y[c] and Z[c]
+    (n, 6); y is overwritten. Returns the path's length. (Rows are indexed
+    in place, not taken as views.)"""
+    for i in range(at.shape[1]):
+        at[c, i] = -1
     m = 0
     while True:
+        if node == inject_at:
+            for s in range(6):
+                y[s] += inject[s]
         path[c, m] = node
         at[c, node] = m
         for s in range(6):
@@ -381,33 +388,6 @@ def path_product(path, length, Z, at, Y, c, r):
             for s in range(6):
                 acc += Y[r, mr, s] * Z[c, m, s]
     return acc
-
-
-@kernel
-def rows_inverse(layout, row_joint, row_slot, slot_offset, Dinv, L, B, path, length, at, Y, Z, y):
-    """B (k, k) = (J M⁻¹ Jᵀ)⁻¹ on the k rows (tree joint row_joint[c], slot
-    row_slot[c] + slot_offset), symmetric, from the factors of ``factor``: B_rc =
-    -(F⁻¹ e_r)ᵀ D⁻¹ (F⁻¹ e_c) (the sign: x = -z on the joint rows), each
-    unit row walked up its path (``walk_up``), each pair summed over the
-    nodes the paths share (``path_product``): a few 6-vectors a pair instead
-    of a substitution of k columns over the whole tree. path, at (k, n),
-    length (k,) (int64), Y, Z (k, n, 6), y (6,): the walks' scratch
-    (``walks``), at refilled with -1 here."""
-    nb = layout.n_bodies
-    k = row_joint.size
-    for c in range(k):
-        for i in range(at.shape[1]):
-            at[c, i] = -1
-    for c in range(k):
-        for s in range(6):
-            y[s] = 0.0
-        y[row_slot[c] + slot_offset] = 1.0
-        length[c] = walk_up(layout.parent, Dinv, L, nb + row_joint[c], y, path, at, Y, Z, c)
-    for c in range(k):
-        for r in range(c, k):
-            v = -path_product(path, length, Z, at, Y, c, r)
-            B[r, c] = v
-            B[c, r] = v
 
 
 # ------------------------------------------------------------ batches

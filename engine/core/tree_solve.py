@@ -17,12 +17,17 @@ row (hinges and ball joints), slot 4 the swing row (ball joints). A limit
 row is one-sided (σ λ ≥ 0) and rigid, so its impulse is found whole by an
 active set: start from the rows the velocities would violate, drop rows
 whose impulse pulls, add rows the solve drives past their bound. With at
-most ``SCHUR_LIMIT_ROWS`` candidate rows the system with every existing
-limit row is factored once per set of positions and B = A⁻¹ on the limit
-rows kept; dropping rows D is solving with their right-hand side moved by
-δ_D, where B_DD δ_D = -(B r)_D (the Schur complement update of active-set
-methods, Nocedal & Wright 2006, ch. 16). With more, each pass factors the
-system of its active rows afresh.
+most ``SCHUR_LIMIT_ROWS`` candidate rows the equality rows alone are
+factored once per set of positions and each pass adds its active limit rows
+A by their Schur complement (the range-space update of active-set methods,
+Nocedal & Wright 2006, ch. 16): with x_E0 = A_EE⁻¹ r_E the equality rows'
+solution, the limit rows' is S x_A = lr_A - J_A M⁻¹ J_Eᵀ x_E0 with
+S = J_A P J_Aᵀ, P = M⁻¹ - M⁻¹ J_Eᵀ A_EE⁻¹ J_E M⁻¹ the bodies' block of
+[M J_Eᵀ; J_E 0]⁻¹, and the equality rows' x_E = A_EE⁻¹ (r_E - J_E M⁻¹ J_Aᵀ
+x_A), one substitution with J_Aᵀ x_A on the bodies. S is summed from walks
+up the tree of the rows that are active (``tree.walk_up``,
+``tree.path_product``), each walked once a solve. With more candidate rows,
+each pass factors the system of its active rows afresh.
 
 Metric. The tree bodies' metric is M = blockdiag(m I, I_w); with geometric
 stiffness (Andrews, Teichmann & Kry 2017; Tournier et al. 2015) a joint
@@ -43,7 +48,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .jit import SERIAL_BELOW, allocating_kernel, inlined_kernel, kernel, parallel_kernel, prange
-from .tree import factor, rows_inverse, substitute_one, sym3_inverse_into
+from .tree import factor, path_product, solve_nodes, substitute_one, sym3_inverse_into, walk_up
 from .vec import (
     add,
     add_scaled,
@@ -100,12 +105,11 @@ class TreeScratch(NamedTuple):
     Jb: np.ndarray  # (W, nj, 6, 6): blocks on side b
     Dinv: np.ndarray  # (W, n, 6, 6): the factors
     L: np.ndarray  # (W, n, 6, 6)
-    B: np.ndarray  # (W, k, k): A⁻¹ on the limit rows
 
 
-def empty_scratch(W, nj, n, k) -> TreeScratch:
+def empty_scratch(W, nj, n) -> TreeScratch:
     return TreeScratch(np.zeros((W, nj, 3, 3)), np.zeros((W, nj, 6)), np.zeros((W, nj, 6, 6)),
-                       np.zeros((W, nj, 6, 6)), np.zeros((W, n, 6, 6)), np.zeros((W, n, 6, 6)), np.zeros((W, k, k)))
+                       np.zeros((W, nj, 6, 6)), np.zeros((W, n, 6, 6)), np.zeros((W, n, 6, 6)))
 
 
 # ------------------------------------------------------------------ metric
@@ -383,15 +387,14 @@ def body_impulses(T, Ja, Jb, d, out):
 
 
 @kernel
-def _apply(T, Ja, Jb, d, iinv, lam_lin, lam_ang, v, w, imp):
+def _apply(T, d, imp, iinv, lam_lin, lam_ang, v, w):
     """Accumulate the equality impulses d * eq_mask into the joints' λ and
-    apply Jᵀ d (with whatever rows Ja, Jb hold) to the velocities."""
+    apply the bodies' impulses imp (N, 6) = Jᵀ d to the velocities."""
     for j in range(T.joint.size):
         jj = T.joint[j]
         for s in range(3):
             lam_lin[jj, s] = lam_lin[jj, s] + d[j, s] * T.eq_mask[j, s]
             lam_ang[jj, s] = lam_ang[jj, s] + d[j, 3 + s] * T.eq_mask[j, 3 + s]
-    body_impulses(T, Ja, Jb, d, imp)
     for i in range(imp.shape[0]):
         im = T.inv_mass[i]
         for c in range(3):
@@ -502,26 +505,28 @@ def solve_work(nj, n, N, k):
     """The work buffers (float64, bool, int64) of ``solve_world`` for nj tree
     joints, n tree nodes, N bodies and k limit rows: allocated once by a
     caller that solves many times, carved into arrays by ``_work_views``."""
-    floats = 133 * nj + 6 * N + 114 * n + k * k + k + 12 * k * n + 42
-    return (np.empty(floats), np.empty(9 * nj + k, dtype=np.bool_),
+    floats = 129 * nj + 6 * N + 114 * n + k * k + k + 12 * k * n + 42
+    return (np.empty(floats), np.empty(9 * nj + 2 * k, dtype=np.bool_),
             np.empty(2 * k + 2 * k * n, dtype=np.int64))
 
 
 @inlined_kernel
 def _work_views(fw, bw, iw, nj, n, N, k):
     """The arrays of one solve carved from the work buffers of ``solve_work``
-    (uninitialised): lrows (nj, 2, 3), lr and sigma (nj, 2); mask_f, rhs, r,
-    lim, d (nj, 6); imp (N, 6); x1, xs, x0 (nj, 6); Jaw, Jbw (nj, 6, 6);
-    Dinv_w, L_w (n, 6, 6); Bd (k, k); delta (k,); ``factor``'s acc (n, 6, 6)
+    (uninitialised): lrows (nj, 2, 3), lr, lr0 and sigma (nj, 2); mask_f, rhs, r,
+    lim, d (nj, 6); imp (N, 6); xs, x0 (nj, 6); Jaw, Jbw (nj, 6, 6);
+    Dinv_w, L_w (n, 6, 6); S_A (k, k); delta (k,); ``factor``'s acc (n, 6, 6)
     and work (1, 6, 6); ``substitute_one``'s y (n, 6); ``limit_rows``' Lw
-    (nj, 3); ``rows_inverse``'s walks Yk, Zk (k, n, 6) and y6 (6,); exists
+    (nj, 3); the limit rows' walks Yk, Zk (k, n, 6) and y6 (6,); exists
     (nj, 2), lower (nj,), active, bad, add (nj, 2), ``solve_dense``'s zero
-    (k,) (bool); drop_idx (k,), the walks' length (k,), path and at (k, n)
-    (int64)."""
+    (k,), walked (k,) (bool); act_idx (k,), the walks' length (k,), path
+    and at (k, n) (int64)."""
     o = 0
     lrows = fw[o:o + 6 * nj].reshape((nj, 2, 3))
     o += 6 * nj
     lr = fw[o:o + 2 * nj].reshape((nj, 2))
+    o += 2 * nj
+    lr0 = fw[o:o + 2 * nj].reshape((nj, 2))
     o += 2 * nj
     sigma = fw[o:o + 2 * nj].reshape((nj, 2))
     o += 2 * nj
@@ -537,8 +542,6 @@ def _work_views(fw, bw, iw, nj, n, N, k):
     o += 6 * nj
     imp = fw[o:o + 6 * N].reshape((N, 6))
     o += 6 * N
-    x1 = fw[o:o + 6 * nj].reshape((nj, 6))
-    o += 6 * nj
     xs = fw[o:o + 6 * nj].reshape((nj, 6))
     o += 6 * nj
     x0 = fw[o:o + 6 * nj].reshape((nj, 6))
@@ -551,7 +554,7 @@ def _work_views(fw, bw, iw, nj, n, N, k):
     o += 36 * n
     L_w = fw[o:o + 36 * n].reshape((n, 6, 6))
     o += 36 * n
-    Bd = fw[o:o + k * k].reshape((k, k))
+    S_A = fw[o:o + k * k].reshape((k, k))
     o += k * k
     delta = fw[o:o + k]
     o += k
@@ -569,6 +572,7 @@ def _work_views(fw, bw, iw, nj, n, N, k):
     o += 6 * k * n
     y6 = fw[o:o + 6]
     zero = bw[9 * nj:9 * nj + k]
+    walked = bw[9 * nj + k:9 * nj + 2 * k]
     length = iw[k:2 * k]
     path = iw[2 * k:2 * k + k * n].reshape((k, n))
     at = iw[2 * k + k * n:2 * k + 2 * k * n].reshape((k, n))
@@ -577,31 +581,65 @@ def _work_views(fw, bw, iw, nj, n, N, k):
     active = bw[3 * nj:5 * nj].reshape((nj, 2))
     bad = bw[5 * nj:7 * nj].reshape((nj, 2))
     add = bw[7 * nj:9 * nj].reshape((nj, 2))
-    return (lrows, lr, sigma, mask_f, rhs, r, lim, d, imp, x1, xs, x0, Jaw, Jbw, Dinv_w,
-            L_w, Bd, delta, acc, work, ys, Lw, Yk, Zk, y6, exists, lower, active, bad, add, zero, iw[0:k], length,
-            path, at)
+    return (lrows, lr, lr0, sigma, mask_f, rhs, r, lim, d, imp, xs, x0, Jaw, Jbw, Dinv_w,
+            L_w, S_A, delta, acc, work, ys, Lw, Yk, Zk, y6, exists, lower, active, bad, add, zero, walked, iw[0:k],
+            length, path, at)
+
+
+@kernel
+def _limit_impulses(T, on, lrows, d, imp):
+    """imp (N, 6) += the limit rows' impulses d[j, 3 + s] along their axes
+    lrows[j, s] where ``on`` (nj, 2): +axis on side b, -axis on side a."""
+    for j in range(T.joint.size):
+        a, b = T.a[j], T.b[j]
+        for s in range(2):
+            if on[j, s]:
+                lam = d[j, 3 + s]
+                for c in range(3):
+                    t = lrows[j, s, c] * lam
+                    imp[b, 3 + c] += t
+                    imp[a, 3 + c] -= t
+
+
+@kernel
+def _walk_limit_row(T, layout, Dinv, L, j, s, lrows, y, inject, path, at, Y, Z, c):
+    """Walk c of ``tree.walk_up``: F⁻¹ of limit row (j, s)'s body-space
+    vector J_lᵀ (+axis on side b's angular rows, -axis on side a's), from
+    the joint's tree child body up its path through the joint, picking up
+    the other side at the joint's tree parent (none for a root joint, whose
+    other side is static). Returns the path's length."""
+    sign = 1.0 if layout.child_is_b[j] else -1.0
+    for i in range(3):
+        y[i] = 0.0
+        inject[i] = 0.0
+        y[3 + i] = sign * lrows[j, s, i]
+        inject[3 + i] = -sign * lrows[j, s, i]
+    return walk_up(layout.parent, Dinv, L, layout.joint_child[j], y, layout.parent[layout.n_bodies + j], inject,
+                   path, at, Y, Z, c)
 
 
 @kernel
 def solve_world(T, layout, fpw, fcw, ra, rb, jt, twist, js, c_swing, twist_defined, broken, iinv, M, M_inv, x, q,
                 v, w, lam_lin, lam_ang, lam_limit, bias_rate, mass_scale, impulse_scale, use_bias, h, max_push_out,
                 max_angular_push_out, limits, schur, active_set_passes, refactor, S_E, S_mask, S_Ja, S_Jb, S_Dinv,
-                S_L, S_B, fw, bw, iw):
+                S_L, fw, bw, iw):
     """One solve of the tree rows of one world, in place on the velocities
     v, w (N, 3) and the impulses λ (J, 3): the equality rows by the soft
     step and, with ``limits``, the limit rows by their active set
     (``active_set_passes`` passes at most; ``schur``: on one factorisation
-    with B = A⁻¹ on the limit rows, else factoring each pass). ``refactor``: the positions or
+    of the equality rows, the active limit rows added by their Schur
+    complement, else factoring each pass). ``refactor``: the positions or
     the metric changed since the last solve, so the blocks and factors in
     the scratch (S_*) are rebuilt; otherwise they are reused.
     bias_rate, mass_scale, impulse_scale (nj,): the softness of each joint.
     fw, bw, iw: the caller's work buffers (``solve_work``), reused by every
     solve on its thread."""
     nj = T.joint.size
+    nb = layout.n_bodies
     N = v.shape[0]
     k = T.cand_joint.size
-    (lrows, lr, sigma, mask_f, rhs, r, lim, d, imp, x1, xs, x0, Jaw, Jbw, Dinv_w, L_w, Bd, delta, acc, work, ys, Lw,
-     Yk, Zk, y6, exists, lower, active, bad, add, zero, drop_idx, length, path, at) = _work_views(
+    (lrows, lr, lr0, sigma, mask_f, rhs, r, lim, d, imp, xs, x0, Jaw, Jbw, Dinv_w, L_w, S_A, delta, acc, work,
+     ys, Lw, Yk, Zk, y6, exists, lower, active, bad, add, zero, walked, act_idx, length, path, at) = _work_views(
         fw, bw, iw, nj, S_Dinv.shape[0], N, k)
     for j in range(nj):
         lower[j] = False
@@ -619,56 +657,89 @@ def solve_world(T, layout, fpw, fcw, ra, rb, jt, twist, js, c_swing, twist_defin
                    max_angular_push_out, lrows, lr, sigma, exists, lower, Lw)
     if refactor:
         blocks(T, fpw, ra, rb, broken, S_E, S_mask, S_Ja, S_Jb)
-        if limits and schur:
-            _with_slots(T, exists, lrows, S_mask, S_Ja, S_Jb, mask_f)
-            factor(layout, S_Ja, S_Jb, mask_f, M, M_inv, True, False, S_Dinv, S_L, acc, work)
-            # B = A⁻¹ on the limit rows.
-            rows_inverse(layout, T.cand_joint, T.cand_slot, 3, S_Dinv, S_L, S_B, path, length, at, Yk, Zk, y6)
-        elif not limits:
+        if schur or not limits:
+            # The equality rows alone (the limit rows, if any, join by their Schur complement).
             factor(layout, S_Ja, S_Jb, S_mask, M, M_inv, True, True, S_Dinv, S_L, acc, work)
     right_hand_side(T, S_E, S_mask, fpw, fcw, ra, rb, x, q, v, w, True, use_bias, bias_rate, max_push_out,
                     max_angular_push_out, r)
     if not limits:
         substitute_one(layout, S_Dinv, S_L, r, xs, ys)
         _soft_impulses(T, xs, S_mask, lim, False, mass_scale, impulse_scale, lam_lin, lam_ang, d)
-        _apply(T, S_Ja, S_Jb, d, iinv, lam_lin, lam_ang, v, w, imp)
+        body_impulses(T, S_Ja, S_Jb, d, imp)
+        _apply(T, d, imp, iinv, lam_lin, lam_ang, v, w)
         return
     for j in range(nj):
         for s in range(2):
             active[j, s] = exists[j, s] and sigma[j, s] * lr[j, s] < 0
     if schur:
-        _slot_rhs(r, lr, exists, rhs)
-        substitute_one(layout, S_Dinv, S_L, rhs, x0, ys)
+        # x_E0 = A_EE⁻¹ r_E, and the limit rows' right-hand side after it:
+        # lr0 = lr - J_L M⁻¹ J_Eᵀ x_E0.
+        substitute_one(layout, S_Dinv, S_L, r, x0, ys)
+        body_impulses(T, S_Ja, S_Jb, x0, imp)
+        for j in range(nj):
+            a, b = T.a[j], T.b[j]
+            dwa = mat3_vec(iinv, a, (imp[a, 3], imp[a, 4], imp[a, 5]))
+            dwb = mat3_vec(iinv, b, (imp[b, 3], imp[b, 4], imp[b, 5]))
+            rel = sub(dwb, dwa)
+            for s in range(2):
+                lr0[j, s] = lr[j, s] - (lrows[j, s, 0] * rel[0] + lrows[j, s, 1] * rel[1] + lrows[j, s, 2] * rel[2])
+        for c in range(k):
+            walked[c] = False
     Ja_use, Jb_use = S_Ja, S_Jb
+    passes = 0
     for _ in range(active_set_passes):
+        passes += 1
         # x = A⁻¹ r over the equality rows and the active limit rows.
         if schur:
-            nd = 0
+            na = 0
             for c in range(k):
-                if exists[T.cand_joint[c], T.cand_slot[c]] and not active[T.cand_joint[c], T.cand_slot[c]]:
-                    drop_idx[nd] = c
-                    nd += 1
-            for j in range(nj):
-                for s in range(6):
-                    xs[j, s] = x0[j, s]
-            if nd > 0:
-                for p in range(nd):
-                    cp = drop_idx[p]
-                    for qq in range(nd):
-                        Bd[p, qq] = S_B[cp, drop_idx[qq]]
-                    delta[p] = -x0[T.cand_joint[cp], 3 + T.cand_slot[cp]]
-                solve_dense(Bd, delta, nd, zero)
+                if active[T.cand_joint[c], T.cand_slot[c]]:
+                    act_idx[na] = c
+                    na += 1
+                    if not walked[c]:
+                        length[c] = _walk_limit_row(T, layout, S_Dinv, S_L, T.cand_joint[c], T.cand_slot[c], lrows,
+                                                    y6, delta, path, at, Yk, Zk, c)
+                        walked[c] = True
+            if na == 0:
                 for j in range(nj):
                     for s in range(6):
-                        rhs[j, s] = 0.0
-                for p in range(nd):
-                    cp = drop_idx[p]
-                    rhs[T.cand_joint[cp], 3 + T.cand_slot[cp]] = delta[p]
-                substitute_one(layout, S_Dinv, S_L, rhs, x1, ys)
+                        xs[j, s] = x0[j, s]
+            else:
+                # S x_A = lr0_A, S = J_A P J_Aᵀ from the rows' walks (symmetric).
+                for p in range(na):
+                    cp = act_idx[p]
+                    for qq in range(p, na):
+                        val = path_product(path, length, Zk, at, Yk, cp, act_idx[qq])
+                        S_A[p, qq] = val
+                        S_A[qq, p] = val
+                for p in range(na):
+                    cp = act_idx[p]
+                    delta[p] = lr0[T.cand_joint[cp], T.cand_slot[cp]]
+                solve_dense(S_A, delta, na, zero)
+                # x_E = A_EE⁻¹ (r_E - J_E M⁻¹ J_Aᵀ x_A): J_Aᵀ x_A on the bodies, r on the joints.
+                for node in range(nb):
+                    for s in range(6):
+                        ys[node, s] = 0.0
                 for j in range(nj):
                     for s in range(6):
-                        xs[j, s] = x0[j, s] + x1[j, s]
-            Ja_use, Jb_use = S_Ja, S_Jb
+                        ys[nb + j, s] = r[j, s]
+                for p in range(na):
+                    cp = act_idx[p]
+                    j, sl = T.cand_joint[cp], T.cand_slot[cp]
+                    sign = delta[p] if layout.child_is_b[j] else -delta[p]
+                    child, parent = layout.joint_child[j], layout.parent[nb + j]
+                    for c in range(3):
+                        t = sign * lrows[j, sl, c]
+                        ys[child, 3 + c] += t
+                        if parent >= 0:
+                            ys[parent, 3 + c] -= t
+                solve_nodes(layout.order, layout.parent, S_Dinv, S_L, ys)
+                for j in range(nj):
+                    for s in range(6):
+                        xs[j, s] = -ys[nb + j, s]
+                for p in range(na):
+                    cp = act_idx[p]
+                    xs[T.cand_joint[cp], 3 + T.cand_slot[cp]] = delta[p]
         else:
             for j in range(nj):
                 for p in range(6):
@@ -686,6 +757,8 @@ def solve_world(T, layout, fpw, fcw, ra, rb, jt, twist, js, c_swing, twist_defin
         _soft_impulses(T, xs, S_mask, lim, True, mass_scale, impulse_scale, lam_lin, lam_ang, d)
         # The limit rows after the impulses: lr + J_lim (Δω_b - Δω_a).
         body_impulses(T, Ja_use, Jb_use, d, imp)
+        if schur:
+            _limit_impulses(T, active, lrows, d, imp)
         change = False
         for j in range(nj):
             a, b = T.a[j], T.b[j]
@@ -705,8 +778,9 @@ def solve_world(T, layout, fpw, fcw, ra, rb, jt, twist, js, c_swing, twist_defin
             bad_joint = bad[j, 0] or bad[j, 1]
             for s in range(2):
                 active[j, s] = (active[j, s] and not bad[j, s]) or (add[j, s] and not bad_joint)
-        # The last pass's d is the one applied when the passes run out.
-    _apply(T, Ja_use, Jb_use, d, iinv, lam_lin, lam_ang, v, w, imp)
+    # The last pass's d (and its body impulses imp) is the one applied when the passes run out.
+    if passes > 0:
+        _apply(T, d, imp, iinv, lam_lin, lam_ang, v, w)
     for j in range(nj):
         jj = T.joint[j]
         tw = d[j, 3] * lim[j, 3]
@@ -774,7 +848,7 @@ def solve_batch(T, layout, g, broken, iinv, M, M_inv, x, q, v, w, lam_lin, lam_a
                         v[wi], w[wi], lam_lin[wi], lam_ang[wi], lam_limit[wi], bias_rate[wi], mass_scale[wi],
                         impulse_scale[wi], use_bias, h, max_push_out, max_angular_push_out, limits, schur,
                         active_set_passes, refactor, S.E[wi], S.mask[wi], S.Ja[wi], S.Jb[wi], S.Dinv[wi], S.L[wi],
-                        S.B[wi], fw, bw, iw)
+                        fw, bw, iw)
     else:
         for wi in prange(nw):
             fw, bw, iw = solve_work(T.joint.size, S.Dinv.shape[1], v.shape[1], T.cand_joint.size)
@@ -783,7 +857,7 @@ def solve_batch(T, layout, g, broken, iinv, M, M_inv, x, q, v, w, lam_lin, lam_a
                         v[wi], w[wi], lam_lin[wi], lam_ang[wi], lam_limit[wi], bias_rate[wi], mass_scale[wi],
                         impulse_scale[wi], use_bias, h, max_push_out, max_angular_push_out, limits, schur,
                         active_set_passes, refactor, S.E[wi], S.mask[wi], S.Ja[wi], S.Jb[wi], S.Dinv[wi], S.L[wi],
-                        S.B[wi], fw, bw, iw)
+                        fw, bw, iw)
 
 
 @parallel_kernel

@@ -332,7 +332,7 @@ def substeps(c, C, R, view, AS, p, ap, Jt, J, T, layout, TS, g, bodies, gravitat
                                             terms[0], terms[1], terms[2], use_bias, c.h, Jt.max_push,
                                             Jt.max_angular_push, Jt.limits, Jt.schur, Jt.active_set_passes,
                                             not factored, TS.E[wi], TS.mask[wi], TS.Ja[wi], TS.Jb[wi], TS.Dinv[wi],
-                                            TS.L[wi], TS.B[wi], fw, bw, iw)
+                                            TS.L[wi], fw, bw, iw)
                                 factored = True
                         if (part == 0) != c.contacts_first and c.joints and not only_free and Jt.gs_limit.size:
                             # The Gauss-Seidel limit rows, in every solve.
@@ -427,8 +427,8 @@ def no_tree(num_worlds, num_bodies):
                  eq_mask=np.zeros((0, 6)), lo=f0, hi=f0, lo_finite=b0, hi_finite=b0,
                  limit_exists=np.zeros((0, 2), dtype=bool), cand_joint=i0, cand_slot=i0, bodies=i0, mass=f0,
                  inertia=np.zeros((0, 3)), inv_mass=np.zeros(num_bodies))
-    layout = TreeLayout(order=i0, parent=i0, n_bodies=0, leaf=b0, ball=b0, child_is_b=b0)
-    return T, layout, empty_scratch(num_worlds, 0, 0, 0)
+    layout = TreeLayout(order=i0, parent=i0, n_bodies=0, leaf=b0, ball=b0, child_is_b=b0, joint_child=i0)
+    return T, layout, empty_scratch(num_worlds, 0, 0)
 
 
 def no_joints(num_worlds, num_bodies, inv_mass, inv_inertia):
