@@ -178,14 +178,10 @@ class _TreeSolver(_Rows):
         for node in range(nb):
             if t.node_parent[node] >= nb:
                 joint_child[t.node_parent[node] - nb] = node
-        # Each joint's equality rows first (point rows, then its lock rows), the unused ones after.
-        used = self.eq_mask > 0
-        rows = np.ascontiguousarray(np.argsort(~used, axis=1, kind="stable"), dtype=np.int64)
-        n_rows = used.sum(axis=1).astype(np.int64)
         # The static tree for the factorisation kernels (engine.core.tree).
         self.layout = tree_kernels.TreeLayout(
             order=t.order, parent=t.node_parent.astype(np.int64), n_bodies=int(nb),
-            leaf=np.ascontiguousarray(~has_child[:nb]), rows=rows, n_rows=n_rows,
+            leaf=np.ascontiguousarray(~has_child[:nb]), ball=np.ascontiguousarray(self.kind == BALL),
             child_is_b=np.ascontiguousarray(self.child_is_b, dtype=bool), joint_child=joint_child)
         self.limits = False
         self.exact_loop = None  # (articulations + 1,) bool: closed by loops solved with the tree (JointSet)

@@ -25,7 +25,7 @@ Sums are kept in the order of the numpy code these kernels replace: the
 merit's sums over a world's rows are numpy's pairwise summation
 (``_pairwise``), the contact terms are added side b, then side a, point by
 point, row by row. The metric's 6x6 inverses are Gauss-Jordan
-(``tree.inverse_into``), not LAPACK's, so the passes agree with the numpy
+(``tree.inverse6_into``), not LAPACK's, so the passes agree with the numpy
 ones to rounding.
 
 Every kernel is for one world; the batched entry points at the end take a
@@ -39,7 +39,7 @@ import math
 import numpy as np
 
 from .jit import SERIAL_BELOW, allocating_kernel, kernel, parallel_kernel, prange
-from .tree import factor, factor_scratch, inverse_into, substitute
+from .tree import factor, factor_scratch, inverse6_into, substitute
 from .tree_solve import blocks, body_impulses, position_errors, right_hand_side
 from .vec import (
     cross,
@@ -297,7 +297,7 @@ def metric(T, q, M_tree, mass, weight, row_lo, row_hi, row_order, ca, cb, dyn_a,
         for r in range(6):
             for c in range(6):
                 work[0, r, c] = M[kk, r, c]
-        inverse_into(work, 0, M_inv, T.bodies[kk], 6)
+        inverse6_into(work, 0, M_inv, T.bodies[kk])
 
 
 @kernel

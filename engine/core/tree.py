@@ -59,39 +59,38 @@ class TreeLayout(NamedTuple):
     parent: np.ndarray  # (n,) int64: each node's tree parent node, -1 for a root
     n_bodies: int  # nb
     leaf: np.ndarray  # (nb,) bool: body nodes without a child joint (pivot M_b)
+    ball: np.ndarray  # (nj,) bool: ball joints (no angular rows: the closed-form pivot)
     child_is_b: np.ndarray  # (nj,) bool: the joint's side b is its tree child body (else side a)
-    rows: np.ndarray  # (nj, 6) int64: each joint's equality rows (point rows, then its lock rows), n_rows of them
-    n_rows: np.ndarray  # (nj,) int64: 3 ball, 5 hinge, 6 fixed
     joint_child: np.ndarray  # (nj,) int64: the body node of each joint's tree child
 
 
 # ------------------------------------------------------------ small dense blocks
 @kernel
-def inverse_into(a, ia, out, o, n):
-    """out[o, :n, :n] = a[ia, :n, :n]⁻¹ (n <= 6) by Gauss-Jordan elimination with
+def inverse6_into(a, ia, out, o):
+    """out[o] = a[ia]⁻¹ of a 6x6 matrix by Gauss-Jordan elimination with
     partial pivoting (the row with the largest |entry| of the column as
     pivot); a[ia] is overwritten (blocks indexed, not taken as views: a view
     passed to a call costs reference counts). A zero pivot (singular in floating point) fills out with
     NaN; NaN entries propagate."""
-    for i in range(n):
-        for j in range(n):
+    for i in range(6):
+        for j in range(6):
             out[o, i, j] = 0.0
         out[o, i, i] = 1.0
-    for c in range(n):
+    for c in range(6):
         p = c
         big = abs(a[ia, c, c])
-        for r in range(c + 1, n):
+        for r in range(c + 1, 6):
             v = abs(a[ia, r, c])
             if v > big:
                 big = v
                 p = r
         if big == 0.0:
-            for i in range(n):
-                for j in range(n):
+            for i in range(6):
+                for j in range(6):
                     out[o, i, j] = np.nan
             return
         if p != c:
-            for j in range(n):
+            for j in range(6):
                 t = a[ia, c, j]
                 a[ia, c, j] = a[ia, p, j]
                 a[ia, p, j] = t
@@ -99,19 +98,19 @@ def inverse_into(a, ia, out, o, n):
                 out[o, c, j] = out[o, p, j]
                 out[o, p, j] = t
         piv = a[ia, c, c]
-        for j in range(c + 1, n):
+        for j in range(c + 1, 6):
             a[ia, c, j] = a[ia, c, j] / piv
-        for j in range(n):
+        for j in range(6):
             out[o, c, j] = out[o, c, j] / piv
         a[ia, c, c] = 1.0
-        for r in range(n):
+        for r in range(6):
             if r == c:
                 continue
             f = a[ia, r, c]
             if f != 0.0:
-                for j in range(c + 1, n):
+                for j in range(c + 1, 6):
                     a[ia, r, j] -= f * a[ia, c, j]
-                for j in range(n):
+                for j in range(6):
                     out[o, r, j] -= f * out[o, c, j]
             a[ia, r, c] = 0.0
 
@@ -128,6 +127,44 @@ def sym3_inverse_into(a, ia, out, o):
     out[o, 2, 0], out[o, 2, 1], out[o, 2, 2] = i02, i12, i22
 
 
+@kernel
+def mul_ab_into(A, ia, B, ib, out, o):
+    """out[o] = A[ia] B[ib] of 6x6 blocks, each entry summed over i = 0..5 in
+    order (the loop over a row's entries innermost, independent of each
+    other)."""
+    for r in range(6):
+        for c in range(6):
+            out[o, r, c] = 0.0
+        for i in range(6):
+            a = A[ia, r, i]
+            for c in range(6):
+                out[o, r, c] += a * B[ib, i, c]
+
+
+@kernel
+def mul_atb_into(A, ia, B, ib, out, o):
+    """out[o] = A[ia]ᵀ B[ib] of 6x6 blocks, summed as ``mul_ab_into``."""
+    for r in range(6):
+        for c in range(6):
+            out[o, r, c] = 0.0
+        for i in range(6):
+            a = A[ia, i, r]
+            for c in range(6):
+                out[o, r, c] += a * B[ib, i, c]
+
+
+@kernel
+def mul_abt_into(A, ia, B, ib, out, o):
+    """out[o] = A[ia] B[ib]ᵀ of 6x6 blocks, each entry a dot product of two
+    rows summed in order."""
+    for r in range(6):
+        for c in range(6):
+            s = 0.0
+            for i in range(6):
+                s += A[ia, r, i] * B[ib, c, i]
+            out[o, r, c] = s
+
+
 # ------------------------------------------------------------ one world
 @allocating_kernel
 def factor_scratch(n):
@@ -137,19 +174,17 @@ def factor_scratch(n):
 
 
 @kernel
-def factor(layout, Ja, Jb, mask, M, M_inv, use_leaf_inv, eq_rows, Dinv, L, acc, work):
+def factor(layout, Ja, Jb, mask, M, M_inv, use_leaf_inv, ball_rows, Dinv, L, acc, work):
     """Block LDLᵀ factors of [M Jᵀ; J 0] of one world into Dinv and L (n, 6, 6).
 
     Ja, Jb (nj, 6, 6): each joint's rows on its sides a and b; mask (nj, 6):
     1 on a used row, 0 on an unused one; M (nb, 6, 6): the bodies' metric
     (kg, kg·m²) and, with ``use_leaf_inv``, M_inv its inverse (the leaf
-    bodies' pivots). ``eq_rows``: only each joint's equality rows
-    (``TreeLayout.rows``) can be used, the others are masked; the blocks
-    are then formed on those rows alone (a ball joint's pivot by its closed
-    form), an unused row's pivot entry being -1 and its couplings 0. L of a
-    root is 0. acc (n, 6, 6) and work (1, 6, 6): the caller's scratch (see
-    ``factor_scratch``). Blocks are indexed, not taken as views (a view
-    passed to a call costs reference counts)."""
+    bodies' pivots); ``ball_rows``: the ball joints' angular rows are empty,
+    so their pivots take the closed form. L of a root is 0. acc (n, 6, 6)
+    and work (1, 6, 6): the caller's scratch (see ``factor_scratch``).
+    Blocks are indexed, not taken as views (a view passed to a call costs
+    reference counts)."""
     nb = layout.n_bodies
     n = layout.order.size
     # acc: Σ_children J_pᵀ D_j⁻¹ J_p of a body node, J_c D_c⁻¹ J_cᵀ of a joint node.
@@ -169,80 +204,55 @@ def factor(layout, Ja, Jb, mask, M, M_inv, use_leaf_inv, eq_rows, Dinv, L, acc, 
                 for r in range(6):
                     for c in range(6):
                         work[0, r, c] = M[node, r, c] - acc[node, r, c]
-                inverse_into(work, 0, Dinv, node, 6)
+                inverse6_into(work, 0, Dinv, node)
             if p < 0:
                 for r in range(6):
                     for c in range(6):
                         L[node, r, c] = 0.0
                 continue
             j = p - nb
-            m = layout.n_rows[j] if eq_rows else 6
-            # L_b = D_b⁻¹ J_cᵀ (columns: the joint's rows); the parent joint's
-            # J_c D_b⁻¹ J_cᵀ = J_c L_b on its rows.
-            for r in range(6):
-                for c in range(6):
-                    L[node, r, c] = 0.0
-            for a in range(m):
-                c = layout.rows[j, a] if eq_rows else a
-                for r in range(6):
-                    t = 0.0
-                    for i in range(6):
-                        t += Dinv[node, r, i] * (Jb[j, c, i] if layout.child_is_b[j] else Ja[j, c, i])
-                    L[node, r, c] = t
-            for a in range(m):
-                r = layout.rows[j, a] if eq_rows else a
-                for b in range(m):
-                    c = layout.rows[j, b] if eq_rows else b
-                    t = 0.0
-                    for i in range(6):
-                        t += (Jb[j, r, i] if layout.child_is_b[j] else Ja[j, r, i]) * L[node, i, c]
-                    acc[p, r, c] = t
+            # L_b = D_b⁻¹ J_cᵀ; the parent joint's J_c D_b⁻¹ J_cᵀ = J_c L_b.
+            if layout.child_is_b[j]:
+                mul_abt_into(Dinv, node, Jb, j, L, node)
+                mul_ab_into(Jb, j, L, node, acc, p)
+            else:
+                mul_abt_into(Dinv, node, Ja, j, L, node)
+                mul_ab_into(Ja, j, L, node, acc, p)
         else:
             j = node - nb
-            m = layout.n_rows[j] if eq_rows else 6
-            # D_j = diag(mask - 1) - J_c D_c⁻¹ J_cᵀ on the used rows, inverted
-            # there (compressed to work[0, :m, :m]); -1 on the others.
-            for a in range(m):
-                r = layout.rows[j, a] if eq_rows else a
-                for b in range(m):
-                    c = layout.rows[j, b] if eq_rows else b
-                    work[0, a, b] = -acc[node, r, c]
-                work[0, a, a] += mask[j, r] - 1.0
-            for r in range(6):
-                for c in range(6):
-                    Dinv[node, r, c] = 0.0
-                Dinv[node, r, r] = -1.0
-            if m == 3:
-                sym3_inverse_into(work, 0, acc, node)  # acc[node] has served: the inverse lands there
+            if ball_rows and layout.ball[j]:
+                # blockdiag(D[:3, :3], -I): the point rows' 3x3 block and -1 on the empty rows.
+                for r in range(3):
+                    for c in range(3):
+                        work[0, r, c] = -acc[node, r, c]
+                    work[0, r, r] += mask[j, r] - 1.0
+                for r in range(6):
+                    for c in range(6):
+                        Dinv[node, r, c] = 0.0
+                sym3_inverse_into(work, 0, Dinv, node)
+                for r in range(3, 6):
+                    Dinv[node, r, r] = -1.0
             else:
-                inverse_into(work, 0, acc, node, m)
-            for a in range(m):
-                r = layout.rows[j, a] if eq_rows else a
-                for b in range(m):
-                    c = layout.rows[j, b] if eq_rows else b
-                    Dinv[node, r, c] = acc[node, a, b]
-            for r in range(6):
-                for c in range(6):
-                    L[node, r, c] = 0.0
+                for r in range(6):
+                    for c in range(6):
+                        work[0, r, c] = -acc[node, r, c]
+                    work[0, r, r] += mask[j, r] - 1.0
+                inverse6_into(work, 0, Dinv, node)
             if p < 0:
+                for r in range(6):
+                    for c in range(6):
+                        L[node, r, c] = 0.0
                 continue
-            # L_j = D_j⁻¹ J_p on the used rows; the parent body's pivot loses
-            # J_pᵀ D_j⁻¹ J_p = J_pᵀ L_j.
-            for a in range(m):
-                r = layout.rows[j, a] if eq_rows else a
-                for c in range(6):
-                    t = 0.0
-                    for b in range(m):
-                        i = layout.rows[j, b] if eq_rows else b
-                        t += Dinv[node, r, i] * (Ja[j, i, c] if layout.child_is_b[j] else Jb[j, i, c])
-                    L[node, r, c] = t
+            # L_j = D_j⁻¹ J_p; the parent body's pivot loses J_pᵀ D_j⁻¹ J_p = J_pᵀ L_j.
+            if layout.child_is_b[j]:
+                mul_ab_into(Dinv, node, Ja, j, L, node)
+                mul_atb_into(Ja, j, L, node, work, 0)
+            else:
+                mul_ab_into(Dinv, node, Jb, j, L, node)
+                mul_atb_into(Jb, j, L, node, work, 0)
             for r in range(6):
                 for c in range(6):
-                    t = 0.0
-                    for a in range(m):
-                        i = layout.rows[j, a] if eq_rows else a
-                        t += (Ja[j, i, r] if layout.child_is_b[j] else Jb[j, i, r]) * L[node, i, c]
-                    acc[p, r, c] += t
+                    acc[p, r, c] += work[0, r, c]
 
 
 @allocating_kernel

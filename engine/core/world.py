@@ -427,8 +427,7 @@ def no_tree(num_worlds, num_bodies):
                  eq_mask=np.zeros((0, 6)), lo=f0, hi=f0, lo_finite=b0, hi_finite=b0,
                  limit_exists=np.zeros((0, 2), dtype=bool), cand_joint=i0, cand_slot=i0, bodies=i0, mass=f0,
                  inertia=np.zeros((0, 3)), inv_mass=np.zeros(num_bodies))
-    layout = TreeLayout(order=i0, parent=i0, n_bodies=0, leaf=b0, child_is_b=b0, rows=np.zeros((0, 6), dtype=np.int64),
-                        n_rows=i0, joint_child=i0)
+    layout = TreeLayout(order=i0, parent=i0, n_bodies=0, leaf=b0, ball=b0, child_is_b=b0, joint_child=i0)
     return T, layout, empty_scratch(num_worlds, 0, 0)
 
 
