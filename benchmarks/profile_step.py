@@ -142,7 +142,8 @@ def samples(perf_data):
         m = re.match(r"\.\.\. ustack: size (\d+), offset (0x[0-9a-f]+)", line)
         if m and ip is not None:
             at = int(m.group(2), 16)
-            words = [struct.unpack_from("<Q", raw, at + 8 * k)[0] for k in range(4)] if len(raw) >= at + 32 else []
+            count = max(0, min(64, (len(raw) - at) // 8))  # the 512 bytes of stack perf copies
+            words = [struct.unpack_from("<Q", raw, at + 8 * k)[0] for k in range(count)]
             pending = (ip, words)
             continue
         m = re.match(r" \.\.\.\.\.\. dso: (.*)", line)
@@ -152,7 +153,7 @@ def samples(perf_data):
     p.wait()
 
 
-def profile(worlds, threads, seconds, frequency=999):
+def profile(worlds, threads, seconds, frequency=999, callers_of=()):
     if shutil.which("perf") is None:
         raise SystemExit("profile_step needs Linux perf (linux-tools) on PATH")
     keep_object_code()
@@ -168,7 +169,7 @@ def profile(worlds, threads, seconds, frequency=999):
         step(model, state, controls[i % len(controls)])
     symbols = Symbols(write_perf_map())
     out = os.path.join(tempfile.mkdtemp(), "perf.data")
-    rec = subprocess.Popen(["perf", "record", "-q", "-F", str(frequency), "--call-graph", "dwarf,64", "-p",
+    rec = subprocess.Popen(["perf", "record", "-q", "-F", str(frequency), "--call-graph", "dwarf,512", "-p",
                             str(os.getpid()), "-o", out, "--", "sleep", str(seconds)],
                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     n, t0 = 0, time.perf_counter()
@@ -177,15 +178,20 @@ def profile(worlds, threads, seconds, frequency=999):
         n += 1
     elapsed = time.perf_counter() - t0
     own, nrt_callers, total = collections.Counter(), collections.Counter(), 0
+    callers = {name: collections.Counter() for name in callers_of}
     for ip, dso, words in samples(out):
         total += 1
         name = symbols.name(ip) or dso
         own[name] += 1
-        if name in NRT:
-            caller = next((c for c in map(symbols.name, words) if c and c not in NRT), "?")
-            nrt_callers[caller] += 1
+        if name in NRT or name in callers:
+            # The first kernel other than itself whose code a word of the
+            # sample's top of stack points into: a return address, its caller
+            # (a guess: a leaf's saved registers can hide it, "?").
+            caller = next((c for c in map(symbols.name, words) if c and c not in NRT and c != name), "?")
+            (nrt_callers if name in NRT else callers[name])[caller] += 1
     return {"worlds": worlds, "threads": threads, "steps": n, "us_per_world_step": elapsed / (n * worlds) * 1e6,
-            "samples": total, "self": dict(own.most_common()), "nrt_by_caller": dict(nrt_callers.most_common())}
+            "samples": total, "self": dict(own.most_common()), "nrt_by_caller": dict(nrt_callers.most_common()),
+            "callers": {k: dict(v.most_common()) for k, v in callers.items()}}
 
 
 def parse_args(argv):
@@ -194,13 +200,16 @@ def parse_args(argv):
     ap.add_argument("--threads", type=thread_count, default=1, help="threads (default 1)")
     ap.add_argument("--seconds", type=positive_float, default=15.0, help="seconds sampled (default 15)")
     ap.add_argument("--top", type=positive_int, default=30, help="functions listed (default 30)")
+    ap.add_argument("--callers", nargs="+", default=(), metavar="KERNEL",
+                    help="also attribute these kernels' samples to their callers "
+                         "(full names, e.g. engine.core.tree.solve_nodes)")
     ap.add_argument("--json", metavar="PATH", help="write the result here")
     return ap.parse_args(argv)
 
 
 def main(argv=None):
     args = parse_args(argv)
-    r = profile(args.worlds, args.threads, args.seconds)
+    r = profile(args.worlds, args.threads, args.seconds, callers_of=tuple(args.callers))
     total = max(r["samples"], 1)
     print(f"W={r['worlds']} threads={r['threads']}: {r['us_per_world_step']:.0f} us per world-step under "
           f"the profiler, {r['samples']} samples")
@@ -211,6 +220,10 @@ def main(argv=None):
     print(f"\nreference counting {100 * nrt / total:.1f}% of samples, by calling kernel:")
     for name, count in list(r["nrt_by_caller"].items())[:15]:
         print(f"{100 * count / total:7.1f}  {name}")
+    for name, by in r["callers"].items():
+        print(f"\n{name}: {100 * r['self'].get(name, 0) / total:.1f}% of samples, by calling kernel:")
+        for caller, count in list(by.items())[:10]:
+            print(f"{100 * count / total:7.1f}  {caller}")
     if args.json:
         with open(args.json, "w") as f:
             json.dump(r, f, indent=1)
