@@ -595,8 +595,8 @@ class JointSet:
 
     def substep_arrays(self, model, state):
         """The joints' arguments of the compiled substeps after ``begin_step``:
-        (JointStep, JointArrays, TreeRows, TreeLayout, TreeScratch,
-        JointGeometry) (``engine.core.world``); ``finish_substeps`` takes the
+        (JointStep, JointArrays, TreeRows, TreeLayout, JointGeometry)
+        (``engine.core.world``); ``finish_substeps`` takes the
         JointStep's buffers back."""
         from .joint_tree import _per_joint
 
@@ -607,13 +607,13 @@ class JointSet:
         g = self.geometry(state)
         self._frames = g  # the substeps keep it at the current positions
         if t is None:
-            T, layout, S = world.no_tree(W, N)
+            T, layout = world.no_tree(N)
             tree_soft, limits, schur, passes = np.zeros((3, W, 0)), False, False, 0
             geometric, idx, weight = False, np.zeros(0, dtype=np.int64), np.zeros((W, 0))
             M = M_inv = np.zeros((W, 0, 6, 6))
         else:
             nj = t.joints.size
-            T, layout, S = t.arrays, t.layout, t.scratch(W)
+            T, layout = t.arrays, t.layout
             tree_soft = np.stack([_per_joint(x, W, nj) for x in self._soft_terms(True, self._tree_soft)])
             limits, schur = bool(t.limits), t.uses_schur()
             passes = int(t.active_set_passes)
@@ -642,7 +642,7 @@ class JointSet:
             weight=weight, cap=float(s.joint_geometric_stiffness_cap),
             load_before=np.zeros((W, J)) if geometric else np.zeros((W, 0)), rot=np.empty((W, N, 3, 3)),
             iinv_raw=np.empty((W, N, 3, 3)), iinv=np.ascontiguousarray(self._iinv, dtype=float), M=M, M_inv=M_inv)
-        return Jt, self.arrays, T, layout, S, g
+        return Jt, self.arrays, T, layout, g
 
     def finish_substeps(self, state, arrays, substeps):
         """After the compiled substeps: the buffers they wrote (``arrays``, a

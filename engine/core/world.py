@@ -100,7 +100,7 @@ class JointStep(NamedTuple):
     (``engine.joint_tree``): their rows and softness, and the per-world
     buffers of the substeps (W worlds, N bodies, J joints, nj tree joints);
     beside it their ``JointArrays``, ``JointGeometry`` (kept at the current
-    positions), ``TreeRows``, ``TreeLayout`` and ``TreeScratch``. Softness
+    positions), ``TreeRows`` and ``TreeLayout``. Softness
     terms are (bias_rate 1/s, mass_scale, impulse_scale)."""
 
     inv_mass: np.ndarray  # (N,) 1/kg
@@ -172,7 +172,7 @@ class StateArrays(NamedTuple):
 
 # ------------------------------------------------------------------ the worlds
 @allocating_kernel
-def substeps(c, C, R, view, AS, p, ap, Jt, J, T, layout, TS, g, bodies, gravitation, springs, motors, damping, s,
+def substeps(c, C, R, view, AS, p, ap, Jt, J, T, layout, g, bodies, gravitation, springs, motors, damping, s,
              first, stop):
     """Every substep of the steps of worlds first..stop-1, one world after
     the other, in place on the state ``s``. Batches run ranges of worlds on
@@ -195,7 +195,13 @@ def substeps(c, C, R, view, AS, p, ap, Jt, J, T, layout, TS, g, bodies, gravitat
                               np.empty((m, 3)), np.empty((m, 3)))
     qs, sq = np.empty((m, 4)), np.empty((m, 4))
     v1, w1 = np.empty((m, 3)), np.empty((m, 3))
-    fw, bw, iw = solve_work(T.joint.size, TS.Dinv.shape[1], n, T.cand_joint.size)
+    # The tree solve's blocks and factors (``tree_solve.TreeScratch``): a world's
+    # substeps run on one thread from start to end, so one set a thread.
+    nj_t, n_t = T.joint.size, layout.order.size
+    E, mask = np.empty((nj_t, 3, 3)), np.empty((nj_t, 6))
+    Ja, Jb = np.empty((nj_t, 6, 6)), np.empty((nj_t, 6, 6))
+    Dinv, L = np.empty((n_t, 6, 6)), np.empty((n_t, 6, 6))
+    fw, bw, iw = solve_work(nj_t, n_t, n, T.cand_joint.size)
     afw, abw = art.solve_work(AS, first, stop)
     cscratch = np.empty((6, 4))
     for wi in range(first, stop):
@@ -331,8 +337,7 @@ def substeps(c, C, R, view, AS, p, ap, Jt, J, T, layout, TS, g, bodies, gravitat
                                             Jt.M_inv[wi], x, q, v, w, s.lam_lin[wi], s.lam_ang[wi], s.lam_limit[wi],
                                             terms[0], terms[1], terms[2], use_bias, c.h, Jt.max_push,
                                             Jt.max_angular_push, Jt.limits, Jt.schur, Jt.active_set_passes,
-                                            not factored, TS.E[wi], TS.mask[wi], TS.Ja[wi], TS.Jb[wi], TS.Dinv[wi],
-                                            TS.L[wi], fw, bw, iw)
+                                            not factored, E, mask, Ja, Jb, Dinv, L, fw, bw, iw)
                                 factored = True
                         if (part == 0) != c.contacts_first and c.joints and not only_free and Jt.gs_limit.size:
                             # The Gauss-Seidel limit rows, in every solve.
@@ -417,10 +422,10 @@ def no_contacts():
     return C, R, view, S, p, ap
 
 
-def no_tree(num_worlds, num_bodies):
-    """(T, layout, S) of a scene without a joint tree."""
+def no_tree(num_bodies):
+    """(T, layout) of a scene without a joint tree."""
     from .tree import TreeLayout
-    from .tree_solve import TreeRows, empty_scratch
+    from .tree_solve import TreeRows
 
     i0, b0, f0 = np.zeros(0, dtype=np.int64), np.zeros(0, dtype=bool), np.zeros(0)
     T = TreeRows(joint=i0, a=i0, b=i0, hinge=b0, fixed=b0, ball=b0, ang_mask=np.zeros((0, 3)),
@@ -428,18 +433,18 @@ def no_tree(num_worlds, num_bodies):
                  limit_exists=np.zeros((0, 2), dtype=bool), cand_joint=i0, cand_slot=i0, bodies=i0, mass=f0,
                  inertia=np.zeros((0, 3)), inv_mass=np.zeros(num_bodies))
     layout = TreeLayout(order=i0, parent=i0, n_bodies=0, leaf=b0, ball=b0, child_is_b=b0, joint_child=i0)
-    return T, layout, empty_scratch(num_worlds, 0, 0)
+    return T, layout
 
 
 def no_joints(num_worlds, num_bodies, inv_mass, inv_inertia):
-    """The joint arguments (Jt, J, T, layout, S, g) of a scene without joints."""
+    """The joint arguments (Jt, J, T, layout, g) of a scene without joints."""
     from .joints import JointArrays, empty_geometry
 
     W, N = num_worlds, num_bodies
     i0, b0, f0 = np.zeros(0, dtype=np.int64), np.zeros(0, dtype=bool), np.zeros(0)
     J = JointArrays(kind=i0, parent=i0, child=i0, frame_p=np.zeros((0, 4)), frame_c=np.zeros((0, 4)),
                     anchor_p=np.zeros((0, 3)), anchor_c=np.zeros((0, 3)), cone=np.zeros((0, 2)))
-    T, layout, S = no_tree(W, N)
+    T, layout = no_tree(N)
     unit = np.array([0.0, 1.0, 0.0])
     Jt = JointStep(
         inv_mass=inv_mass, inv_inertia=inv_inertia, passive=False, passive_order=i0, stiffness=f0, damping=f0,
@@ -451,4 +456,4 @@ def no_joints(num_worlds, num_bodies, inv_mass, inv_inertia):
         geometric=False, geo_joint=i0, geo_parent=i0, geo_child=i0, n_tree_loaded=0, weight=np.zeros((W, 0)),
         cap=0.0, load_before=np.zeros((W, 0)), rot=np.zeros((W, 0, 3, 3)), iinv_raw=np.zeros((W, 0, 3, 3)),
         iinv=np.zeros((W, 0, 3, 3)), M=np.zeros((W, 0, 6, 6)), M_inv=np.zeros((W, 0, 6, 6)))
-    return Jt, J, T, layout, S, empty_geometry(W, 0)
+    return Jt, J, T, layout, empty_geometry(W, 0)
