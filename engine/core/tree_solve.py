@@ -113,9 +113,9 @@ def empty_scratch(W, nj, n) -> TreeScratch:
 
 
 # ------------------------------------------------------------------ metric
-@allocating_kernel
+@kernel
 def metric(T, rot, iinv, geo_joint, geo_parent, geo_child, n_tree_loaded, weight, lam_lin, load_before,
-           use_load_before, ra, rb, h, cap, use_geometric, iinv_out, M, M_inv):
+           use_load_before, ra, rb, h, cap, use_geometric, iinv_out, M, M_inv, I, G):
     """The tree bodies' metric M and its inverse M_inv (nb, 6, 6) of one world.
 
     rot (N, 3, 3): the bodies' rotation matrices; iinv (N, 3, 3) their world
@@ -126,7 +126,8 @@ def metric(T, rot, iinv, geo_joint, geo_parent, geo_child, n_tree_loaded, weight
     former) with parents, children and weights; λ = ``lam_lin`` (J, 3) N·s,
     with ``use_load_before`` the smaller of |λ| and ``load_before`` (J,);
     lever arms ra, rb (J, 3) m; h s; cap: the stiffness's trace at most
-    cap times the body's inertia's.
+    cap times the body's inertia's. I (nb, 3, 3) and G (N, 3, 3): the
+    caller's scratch (``metric_scratch``).
     """
     N = iinv.shape[0]
     nb = T.bodies.size
@@ -134,7 +135,6 @@ def metric(T, rot, iinv, geo_joint, geo_parent, geo_child, n_tree_loaded, weight
         for r in range(3):
             for c in range(3):
                 iinv_out[i, r, c] = iinv[i, r, c]
-    I = np.empty((nb, 3, 3))
     for k in range(nb):
         body = T.bodies[k]
         R = rot[body]
@@ -146,7 +146,10 @@ def metric(T, rot, iinv, geo_joint, geo_parent, geo_child, n_tree_loaded, weight
                 I[k, r, c] = v
                 I[k, c, r] = v
     if use_geometric:
-        G = np.zeros((N, 3, 3))
+        for i in range(N):
+            for r in range(3):
+                for c in range(3):
+                    G[i, r, c] = 0.0
         n_loaded = geo_joint.size
         for part in range(2):
             lo, hi = (0, n_tree_loaded) if part == 0 else (n_tree_loaded, n_loaded)
@@ -193,6 +196,13 @@ def metric(T, rot, iinv, geo_joint, geo_parent, geo_child, n_tree_loaded, weight
             for c in range(3):
                 M[k, 3 + r, 3 + c] = I[k, r, c]
                 M_inv[k, 3 + r, 3 + c] = iinv_out[body, r, c]
+
+
+@allocating_kernel
+def metric_scratch(nb, N):
+    """The scratch (I (nb, 3, 3), G (N, 3, 3)) of ``metric`` for nb tree
+    bodies of N bodies, allocated once by a caller that computes it often."""
+    return np.empty((nb, 3, 3)), np.empty((N, 3, 3))
 
 
 # ------------------------------------------------------------------ rows
@@ -795,16 +805,19 @@ def metric_batch(T, rot, iinv, geo_joint, geo_parent, geo_child, n_tree_loaded, 
                  use_load_before, ra, rb, h, cap, use_geometric, iinv_out, M, M_inv):
     """``metric`` of every world (weight (W, loaded), load_before (W, J))."""
     nw = rot.shape[0]
+    nb, N = T.bodies.size, rot.shape[1]
     if nw < SERIAL_BELOW:
+        I, G = metric_scratch(nb, N)
         for wi in range(nw):
             metric(T, rot[wi], iinv[wi], geo_joint, geo_parent, geo_child, n_tree_loaded, weight[wi], lam_lin[wi],
                    load_before[wi], use_load_before, ra[wi], rb[wi], h, cap, use_geometric, iinv_out[wi], M[wi],
-                   M_inv[wi])
+                   M_inv[wi], I, G)
     else:
         for wi in prange(nw):
+            I, G = metric_scratch(nb, N)
             metric(T, rot[wi], iinv[wi], geo_joint, geo_parent, geo_child, n_tree_loaded, weight[wi], lam_lin[wi],
                    load_before[wi], use_load_before, ra[wi], rb[wi], h, cap, use_geometric, iinv_out[wi], M[wi],
-                   M_inv[wi])
+                   M_inv[wi], I, G)
 
 
 @parallel_kernel

@@ -54,7 +54,7 @@ from .jit import allocating_kernel, kernel
 from .joint_rows import _add_load_world, _equality_world, _limits_world
 from .joints import _geometry_world, _inertia_world, _passive_world
 from .joints import _warm_start_world as _joint_warm_start
-from .tree_solve import metric, solve_work, solve_world
+from .tree_solve import metric, metric_scratch, solve_work, solve_world
 from .vec import quat_integrate
 
 #: ``StepConstants.integrator`` codes.
@@ -181,7 +181,9 @@ def substeps(c, C, R, view, AS, p, ap, Jt, J, T, layout, g, bodies, gravitation,
     arrays took longer to compile than every other kernel together. The
     solve is written once, in a loop over its two phases (biased, relax):
     numba's compile time grows with each call site and function that passes
-    these arguments on."""
+    these arguments on. The work buffers are allocated here, once a call,
+    and the substeps themselves (``_substeps_of``) allocate nothing, so
+    they count no references to the arrays they index."""
     n = s.x.shape[1]
     nj = Jt.tree_soft.shape[2]
     unit = np.zeros((3, nj))  # the relax solve's softness terms (0, 1, 0)
@@ -204,6 +206,18 @@ def substeps(c, C, R, view, AS, p, ap, Jt, J, T, layout, g, bodies, gravitation,
     fw, bw, iw = solve_work(nj_t, n_t, n, T.cand_joint.size)
     afw, abw = art.solve_work(AS, first, stop)
     cscratch = np.empty((6, 4))
+    I, G = metric_scratch(T.bodies.size, n)
+    _substeps_of(c, C, R, view, AS, p, ap, Jt, J, T, layout, g, bodies, gravitation, springs, motors, damping, s,
+                 first, stop, unit, force, torque, lb, xs, vs, ws, sx, sv, sw, qs, sq, v1, w1, E, mask, Ja, Jb, Dinv,
+                 L, fw, bw, iw, afw, abw, cscratch, I, G)
+
+
+@kernel
+def _substeps_of(c, C, R, view, AS, p, ap, Jt, J, T, layout, g, bodies, gravitation, springs, motors, damping, s,
+                 first, stop, unit, force, torque, lb, xs, vs, ws, sx, sv, sw, qs, sq, v1, w1, E, mask, Ja, Jb, Dinv,
+                 L, fw, bw, iw, afw, abw, cscratch, I, G):
+    """The substeps of ``substeps`` on its work buffers."""
+    n = s.x.shape[1]
     for wi in range(first, stop):
         x, q, v, w = s.x[wi], s.q[wi], s.v[wi], s.w[wi]
         sb, broken = s.spring_broken[wi], s.broken[wi]
@@ -263,7 +277,7 @@ def substeps(c, C, R, view, AS, p, ap, Jt, J, T, layout, g, bodies, gravitation,
                         metric(T, Jt.rot[wi], Jt.iinv_raw[wi], Jt.geo_joint, Jt.geo_parent, Jt.geo_child,
                                Jt.n_tree_loaded, Jt.weight[wi], s.lam_lin[wi], Jt.load_before[wi],
                                Jt.geometric and warmed, g.ra[wi], g.rb[wi], c.h, Jt.cap, Jt.geometric, Jt.iinv[wi],
-                               Jt.M[wi], Jt.M_inv[wi])
+                               Jt.M[wi], Jt.M_inv[wi], I, G)
                     else:
                         _copy_inertias(Jt.iinv_raw[wi], Jt.iinv[wi])
                     factored = False
