@@ -515,7 +515,7 @@ def solve_work(nj, n, N, k):
     """The work buffers (float64, bool, int64) of ``solve_world`` for nj tree
     joints, n tree nodes, N bodies and k limit rows: allocated once by a
     caller that solves many times, carved into arrays by ``_work_views``."""
-    floats = 129 * nj + 6 * N + 114 * n + k * k + k + 12 * k * n + 42
+    floats = 131 * nj + 6 * N + 114 * n + k * k + k + 12 * k * n + 48
     return (np.empty(floats), np.empty(9 * nj + 2 * k, dtype=np.bool_),
             np.empty(2 * k + 2 * k * n, dtype=np.int64))
 
@@ -523,11 +523,11 @@ def solve_work(nj, n, N, k):
 @inlined_kernel
 def _work_views(fw, bw, iw, nj, n, N, k):
     """The arrays of one solve carved from the work buffers of ``solve_work``
-    (uninitialised): lrows (nj, 2, 3), lr, lr0 and sigma (nj, 2); mask_f, rhs, r,
+    (uninitialised): lrows (nj, 2, 3), lr, lr0, dl and sigma (nj, 2); mask_f, rhs, r,
     lim, d (nj, 6); imp (N, 6); xs, x0 (nj, 6); Jaw, Jbw (nj, 6, 6);
     Dinv_w, L_w (n, 6, 6); S_A (k, k); delta (k,); ``factor``'s acc (n, 6, 6)
     and work (1, 6, 6); ``substitute_one``'s y (n, 6); ``limit_rows``' Lw
-    (nj, 3); the limit rows' walks Yk, Zk (k, n, 6) and y6 (6,); exists
+    (nj, 3); the limit rows' walks Yk, Zk (k, n, 6), y6 and e6 (6,); exists
     (nj, 2), lower (nj,), active, bad, add (nj, 2), ``solve_dense``'s zero
     (k,), walked (k,) (bool); act_idx (k,), the walks' length (k,), path
     and at (k, n) (int64)."""
@@ -537,6 +537,8 @@ def _work_views(fw, bw, iw, nj, n, N, k):
     lr = fw[o:o + 2 * nj].reshape((nj, 2))
     o += 2 * nj
     lr0 = fw[o:o + 2 * nj].reshape((nj, 2))
+    o += 2 * nj
+    dl = fw[o:o + 2 * nj].reshape((nj, 2))
     o += 2 * nj
     sigma = fw[o:o + 2 * nj].reshape((nj, 2))
     o += 2 * nj
@@ -581,6 +583,7 @@ def _work_views(fw, bw, iw, nj, n, N, k):
     Zk = fw[o:o + 6 * k * n].reshape((k, n, 6))
     o += 6 * k * n
     y6 = fw[o:o + 6]
+    e6 = fw[o + 6:o + 12]
     zero = bw[9 * nj:9 * nj + k]
     walked = bw[9 * nj + k:9 * nj + 2 * k]
     length = iw[k:2 * k]
@@ -591,8 +594,8 @@ def _work_views(fw, bw, iw, nj, n, N, k):
     active = bw[3 * nj:5 * nj].reshape((nj, 2))
     bad = bw[5 * nj:7 * nj].reshape((nj, 2))
     add = bw[7 * nj:9 * nj].reshape((nj, 2))
-    return (lrows, lr, lr0, sigma, mask_f, rhs, r, lim, d, imp, xs, x0, Jaw, Jbw, Dinv_w,
-            L_w, S_A, delta, acc, work, ys, Lw, Yk, Zk, y6, exists, lower, active, bad, add, zero, walked, iw[0:k],
+    return (lrows, lr, lr0, dl, sigma, mask_f, rhs, r, lim, d, imp, xs, x0, Jaw, Jbw, Dinv_w,
+            L_w, S_A, delta, acc, work, ys, Lw, Yk, Zk, y6, e6, exists, lower, active, bad, add, zero, walked, iw[0:k],
             length, path, at)
 
 
@@ -609,6 +612,20 @@ def _limit_impulses(T, on, lrows, d, imp):
                     t = lrows[j, s, c] * lam
                     imp[b, 3 + c] += t
                     imp[a, 3 + c] -= t
+
+
+@kernel
+def _limit_row_change(T, iinv, imp, lrows, out):
+    """out (nj, 2) = J_lim (Δω_b - Δω_a) of every limit row (axes lrows
+    (nj, 2, 3)) for the bodies' impulses imp (N, 6): the change of its
+    velocity, rad/s, were they applied."""
+    for j in range(T.joint.size):
+        a, b = T.a[j], T.b[j]
+        dwa = mat3_vec(iinv, a, (imp[a, 3], imp[a, 4], imp[a, 5]))
+        dwb = mat3_vec(iinv, b, (imp[b, 3], imp[b, 4], imp[b, 5]))
+        rel = sub(dwb, dwa)
+        for s in range(2):
+            out[j, s] = lrows[j, s, 0] * rel[0] + lrows[j, s, 1] * rel[1] + lrows[j, s, 2] * rel[2]
 
 
 @kernel
@@ -648,8 +665,8 @@ def solve_world(T, layout, fpw, fcw, ra, rb, jt, twist, js, c_swing, twist_defin
     nb = layout.n_bodies
     N = v.shape[0]
     k = T.cand_joint.size
-    (lrows, lr, lr0, sigma, mask_f, rhs, r, lim, d, imp, xs, x0, Jaw, Jbw, Dinv_w, L_w, S_A, delta, acc, work,
-     ys, Lw, Yk, Zk, y6, exists, lower, active, bad, add, zero, walked, act_idx, length, path, at) = _work_views(
+    (lrows, lr, lr0, dl, sigma, mask_f, rhs, r, lim, d, imp, xs, x0, Jaw, Jbw, Dinv_w, L_w, S_A, delta, acc, work,
+     ys, Lw, Yk, Zk, y6, e6, exists, lower, active, bad, add, zero, walked, act_idx, length, path, at) = _work_views(
         fw, bw, iw, nj, S_Dinv.shape[0], N, k)
     for j in range(nj):
         lower[j] = False
@@ -686,13 +703,10 @@ def solve_world(T, layout, fpw, fcw, ra, rb, jt, twist, js, c_swing, twist_defin
         # lr0 = lr - J_L M⁻¹ J_Eᵀ x_E0.
         substitute_one(layout, S_Dinv, S_L, r, x0, ys)
         body_impulses(T, S_Ja, S_Jb, x0, imp)
+        _limit_row_change(T, iinv, imp, lrows, dl)
         for j in range(nj):
-            a, b = T.a[j], T.b[j]
-            dwa = mat3_vec(iinv, a, (imp[a, 3], imp[a, 4], imp[a, 5]))
-            dwb = mat3_vec(iinv, b, (imp[b, 3], imp[b, 4], imp[b, 5]))
-            rel = sub(dwb, dwa)
             for s in range(2):
-                lr0[j, s] = lr[j, s] - (lrows[j, s, 0] * rel[0] + lrows[j, s, 1] * rel[1] + lrows[j, s, 2] * rel[2])
+                lr0[j, s] = lr[j, s] - dl[j, s]
         for c in range(k):
             walked[c] = False
     Ja_use, Jb_use = S_Ja, S_Jb
@@ -708,7 +722,7 @@ def solve_world(T, layout, fpw, fcw, ra, rb, jt, twist, js, c_swing, twist_defin
                     na += 1
                     if not walked[c]:
                         length[c] = _walk_limit_row(T, layout, S_Dinv, S_L, T.cand_joint[c], T.cand_slot[c], lrows,
-                                                    y6, delta, path, at, Yk, Zk, c)
+                                                    y6, e6, path, at, Yk, Zk, c)
                         walked[c] = True
             if na == 0:
                 for j in range(nj):
@@ -769,15 +783,12 @@ def solve_world(T, layout, fpw, fcw, ra, rb, jt, twist, js, c_swing, twist_defin
         body_impulses(T, Ja_use, Jb_use, d, imp)
         if schur:
             _limit_impulses(T, active, lrows, d, imp)
+        _limit_row_change(T, iinv, imp, lrows, dl)
         change = False
         for j in range(nj):
-            a, b = T.a[j], T.b[j]
-            dwa = mat3_vec(iinv, a, (imp[a, 3], imp[a, 4], imp[a, 5]))
-            dwb_t = mat3_vec(iinv, b, (imp[b, 3], imp[b, 4], imp[b, 5]))
-            rel = sub(dwb_t, dwa)
             for s in range(2):
                 bad[j, s] = active[j, s] and sigma[j, s] * -xs[j, 3 + s] < 0
-                after = lr[j, s] + (lrows[j, s, 0] * rel[0] + lrows[j, s, 1] * rel[1] + lrows[j, s, 2] * rel[2])
+                after = lr[j, s] + dl[j, s]
                 add[j, s] = exists[j, s] and not active[j, s] and sigma[j, s] * after < -ACTIVE_SET_TOLERANCE
                 if bad[j, s] or add[j, s]:
                     change = True

@@ -162,3 +162,56 @@ def test_tree_kernels_give_each_world_the_bits_it_gets_alone():
             Dinv1, L1 = tree._factor(Ja[one], Jb[one], mask[one], tree.M[one], ball_rows, tree.M_inv[one])
             assert np.array_equal(Dinv1[0], Dinv[w]) and np.array_equal(L1[0], L[w]), (ball_rows, w)
             assert np.array_equal(tree._substitute_columns((Dinv1, L1), R[one])[0], X[w]), (ball_rows, w)
+
+
+def _limited_chain():
+    """A pendulum of three links hanging from a static anchor: a hinge with a
+    twist range, then two ball joints with swing cones and twist ranges (5
+    limit rows), rigid, limits in the tree."""
+    b = e.SceneBuilder(**RIGID_LIMITS)
+    anchor = b.add_body("anchor", None, static=True, position=(0.0, 0.0, 2.0))
+    links = [b.add_body(f"link{i}", e.Capsule(0.04, 0.2), mass=1.0 + i, position=(0.0, 0.0, 1.8 - 0.3 * i))
+             for i in range(3)]
+    b.add_hinge("hinge", anchor, links[0], anchor=(0.0, 0.0, 2.0), axis=(0.0, 1.0, 0.0), limits=(-0.3, 0.3))
+    for i in (1, 2):
+        b.add_ball(f"ball{i}", links[i - 1], links[i], anchor=(0.0, 0.0, 1.95 - 0.3 * i), twist_axis=(0.0, 0.0, 1.0),
+                   swing_limits=(0.25, 0.4), twist_limits=(-0.2, 0.2))
+    return b.build()
+
+
+def test_both_active_set_paths_give_the_same_impulses(monkeypatch):
+    """The active set on one factorisation of the equality rows, the active
+    limit rows added by their Schur complement, and the active set that
+    factors the system of its active rows each pass: the same velocities and
+    limit impulses to rounding (1e-9 of 1 + |value|: the KKT system's
+    condition amplifies it), on a chain with fewer limit rows (5) than a
+    right-hand side has entries, its spins kicked so that limits close and
+    open (both solves of each kick, biased and relaxed)."""
+    model = _limited_chain()
+    js, tree = model.joints, model.joints.tree
+    rows = tree.limit_candidates[0].size
+    assert rows == 5
+    h = model.settings.dt / model.settings.substeps
+    W = 8
+    state = model.initial_state(W)
+    rng = np.random.default_rng(11)
+    worst, held = 0.0, 0
+    for k in range(40):
+        state.angular_velocity[...] += rng.normal(0.0, 3.0, state.angular_velocity.shape)
+        results = []
+        for threshold in (rows, -1):
+            monkeypatch.setattr(engine.joint_tree, "SCHUR_LIMIT_ROWS", threshold)
+            copy = state.copy()
+            js.begin_step(model, copy, h)
+            assert tree.uses_schur() == (threshold == rows)
+            for use_bias in (True, False):
+                soft = js._soft_terms(use_bias, js._tree_soft)
+                tree.solve(js, model, copy, *soft, use_bias, h)
+            results.append((copy.velocity.copy(), copy.angular_velocity.copy(), copy.joint_limit_impulse.copy()))
+        (v1, w1, l1), (v2, w2, l2) = results
+        for x, y in ((v1, v2), (w1, w2), (l1, l2)):
+            worst = max(worst, float((np.abs(x - y) / (1.0 + np.abs(y))).max()))
+        held += int((l1 > 0).sum())
+        e.step(model, state)
+    assert held > 50, held  # the limits did act
+    assert worst < 1e-9, worst  # relative to 1 + |value| (m/s, rad/s, N m s)
