@@ -192,6 +192,7 @@ class _TreeSolver(_Rows):
         self.component, self.num_components, self.body_component = t.component, t.num_components, t.body_component
         self.geometric_weight = None  # per step: 1, or (W, tree joints) weights, or None
         self.loop_geometric_weight = None  # the same for the loop-closing rows solved with the tree
+        self.loaded = None  # the step's (loaded joints, weights) of ``loaded_joints``, with geometric stiffness
         self._factored = None  # (state, blocks, factors) of the current positions and metric (see solve)
         # Per tree joint: which limit rows exist (twist, swing) while the joint
         # is whole, and the tree's possible limit rows (tree joint, slot 0 twist
@@ -226,8 +227,9 @@ class _TreeSolver(_Rows):
         self.M, self.M_inv = np.empty((W, nb, 6, 6)), np.empty((W, nb, 6, 6))
         geometric = self.geometric_weight is not None
         J = state.joint_linear_impulse.shape[1]
+        self.loaded = self.loaded_joints(js, W) if geometric else None  # for the step's substeps
         if geometric:
-            idx, weight = self.loaded_joints(js, W)
+            idx, weight = self.loaded
             g = js.geometry(state)
             ra, rb = g.ra, g.rb
             iinv_out = np.empty_like(js._iinv)

@@ -618,7 +618,7 @@ class JointSet:
             limits, schur = bool(t.limits), t.uses_schur()
             passes = int(t.active_set_passes)
             geometric = t.geometric_weight is not None
-            idx, weight = t.loaded_joints(self, W) if geometric else (np.zeros(0, dtype=np.int64), np.zeros((W, 0)))
+            idx, weight = t.loaded if geometric else (np.zeros(0, dtype=np.int64), np.zeros((W, 0)))
             M, M_inv = t.M.copy(), t.M_inv.copy()  # the step's start metric stays with the articulated contacts
         zone_on = self._limit_zone is not None
         zs, zone = self._limit_zone if zone_on else (self._limit_soft, np.zeros((W, 0), dtype=bool))

@@ -36,6 +36,7 @@ compiled code.
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import NamedTuple
 
@@ -409,6 +410,14 @@ def contact_row_arrays(R):
 def no_articulated(contact_rows):
     """(view, S, ap) of a step without articulated rows: the view of
     ``contact_rows`` and no column."""
+    view = art.ContactView(*(getattr(contact_rows, f) for f in art.ContactView._fields))
+    return (view, *_no_columns())
+
+
+@functools.cache
+def _no_columns():
+    """(S, ap) without an articulated column: arrays of size 0 (and the
+    starts' single 0) that no kernel writes, made once."""
     z = np.zeros
     S = art.ArticulatedArrays(
         held=z(0, dtype=np.int64), pt_start=z(1, dtype=np.int64), pt_row=z(0, dtype=np.int64),
@@ -417,14 +426,15 @@ def no_articulated(contact_rows):
         parent=z(0, dtype=np.int64), factors=z(0, dtype=np.int64), Dinv=z((0, 0, 6, 6)), L=z((0, 0, 6, 6)),
         M=z((0, 0, 6, 6)), body=z(0, dtype=np.int64), J=z((0, 6)), A=z(0), a_start=z(1, dtype=np.int64), m=z(0),
         mu=z(0), finite=z(0, dtype=bool))
-    view = art.ContactView(*(getattr(contact_rows, f) for f in art.ContactView._fields))
     ap = art.SoftParams(h=0.0, bias_rate=0.0, mass_scale=1.0, impulse_scale=0.0, slop=0.0, max_push_out=0.0,
                         thesis=False, sweeps=0)
-    return view, S, ap
+    return S, ap
 
 
+@functools.cache
 def no_contacts():
-    """The contact arguments (C, R, view, S, p, ap) of a step without contact rows."""
+    """The contact arguments (C, R, view, S, p, ap) of a step without
+    contact rows: arrays of size 0 that no kernel writes, made once."""
     R = contact_row_arrays(0)
     view, S, ap = no_articulated(R)
     i0 = np.zeros(0, dtype=np.int64)

@@ -124,6 +124,9 @@ FAST_XFAIL = {}
 SLOW_XFAIL = {
     "stack_20_small": "the column of 20 cm boxes topples: fastest box 0.96 m/s at 5 s (bound 0.05 from 2 s; "
                       "8 substeps topple it too, 0.5 m boxes rest)",
+    "sphere_grid": "anchor error 1.27 cm (bound 1 cm) when the net's free edge whips through at 1.9 s; "
+                   "missed since 3a8babc (README, hard cases)",
+    "sphere_grid_far": "anchor error 1.56 cm 10 km out (bound 1 cm), as sphere_grid",
 }
 
 
