@@ -36,6 +36,7 @@ chosen per world and step.
 
 from __future__ import annotations
 
+import contextlib
 import math
 from dataclasses import dataclass
 from functools import cached_property
@@ -259,6 +260,21 @@ class JointSet:
                 self._frames = self._compute_geometry(state)
             return self._frames
         return self._compute_geometry(state)
+
+    @contextlib.contextmanager
+    def positions_fixed(self, state):
+        """Within it the joint geometry of ``state`` (``geometry``) is
+        computed once and shared by every query (angles, rates, frames,
+        limits), as within a step: for queries read together, such as an
+        env's observation and reward. The state's positions and orientations
+        must not change inside. Outside a step only."""
+        if self._frames_on:
+            raise RuntimeError("positions_fixed inside a step")
+        self._frames_on, self._frames, self._frames_state = True, None, state
+        try:
+            yield
+        finally:
+            self._frames_on, self._frames, self._frames_state = False, None, None
 
     def _compute_geometry(self, state):
         g = empty_geometry(state.num_worlds, len(self.names))

@@ -22,6 +22,7 @@ NaN stays in the batch.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import sys
 import warnings
@@ -277,8 +278,10 @@ class BatchedSim:
         with np.errstate(all="ignore"):  # a world blowing up is reported in info["nonfinite"]
             for _ in range(self.frame_skip):
                 engine.step(model, self.state, control)
-            obs = task.observe(model, self.state).astype(np.float32)
-            healthy, terms, extra = task.evaluate(model, self.state, a)
+            # The observation and the reward read the same positions: their joint geometry once.
+            with model.joints.positions_fixed(self.state) if model.joints is not None else contextlib.nullcontext():
+                obs = task.observe(model, self.state).astype(np.float32)
+                healthy, terms, extra = task.evaluate(model, self.state, a)
             reward = np.zeros(W)
             for value in terms.values():
                 reward = reward + value

@@ -763,3 +763,35 @@ def test_a_hinge_spring_pulls_the_short_way_round_and_never_gains_energy():
     assert crossed
     assert abs(state.angular_velocity[0, 0, 1]) < 0.05
     assert abs(model.joints.angles(state)[0, 0, 0] - rest) < 0.05
+
+
+def test_positions_fixed_shares_one_geometry_between_queries(monkeypatch):
+    """``JointSet.positions_fixed``: queries read together (angles, rates)
+    compute the joint geometry once and give the values they give alone;
+    after it each query computes its own again; it refuses to nest."""
+    from engine.humanoid import add_humanoid
+
+    b = e.SceneBuilder()
+    b.add_ground()
+    add_humanoid(b)
+    model = b.build()
+    state = model.initial_state(3)
+    rng = np.random.default_rng(2)
+    state.angular_velocity[...] = rng.normal(0.0, 1.0, state.angular_velocity.shape)
+    for _ in range(5):
+        e.step(model, state)
+    js = model.joints
+    alone = (js.angles(state), js.relative_angular_velocity(state))
+    calls = []
+    compute = type(js)._compute_geometry
+    monkeypatch.setattr(type(js), "_compute_geometry", lambda self, s: calls.append(1) or compute(self, s))
+    with js.positions_fixed(state):
+        together = [(js.angles(state), js.relative_angular_velocity(state)) for _ in range(2)]
+        with pytest.raises(RuntimeError):
+            with js.positions_fixed(state):
+                pass
+    assert len(calls) == 1
+    for angles, rates in together:
+        assert np.array_equal(angles, alone[0]) and np.array_equal(rates, alone[1])
+    js.angles(state)
+    assert len(calls) == 2
