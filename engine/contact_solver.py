@@ -184,18 +184,18 @@ class ContactRows:
 
     def substep_arrays(self, h):
         """The rows' arguments of the compiled substeps: (ContactStep,
-        ContactRowArrays, ContactView, ArticulatedArrays, SolverParams,
-        SoftParams) (``engine.core.world``)."""
+        ContactRowArrays, ArticulatedArrays, SolverParams, SoftParams)
+        (``engine.core.world``)."""
         ar = self.articulated
         if ar is None:
-            view, S, ap = world.no_articulated(self.arrays)
+            S, ap = world.no_columns()
         else:
-            view, S, ap = ar.contact_view, ar.arrays, ar.params(self, h)
+            S, ap = ar.arrays, ar.params(self, h)
         steps = (self.lam_n_step, self.lam_t1_step, self.lam_t2_step) if self.bouncy else (np.zeros((0, 4)),) * 3
         C = world.ContactStep(on=True, order=self.order, world_start=self.world_start, world_rows=self.world_rows,
                               row_start=self.row_start, bouncy=bool(self.bouncy), lam_n_step=steps[0],
                               lam_t1_step=steps[1], lam_t2_step=steps[2], articulated=ar is not None)
-        return C, self.arrays, view, S, self._params(h), ap
+        return C, self.arrays, S, self._params(h), ap
 
     def restitution(self, model, state):
         """Bounce once per step: sequential impacts from the closing speeds

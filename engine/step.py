@@ -186,12 +186,25 @@ def _compiled_substeps(model, state, control, joints, contacts, h, contacts_firs
         lam_ang=state.arrays.get("joint_angular_impulse", empty3),
         lam_limit=state.arrays.get("joint_limit_impulse", empty3), spring_broken=state.spring_broken,
         cforce=force, ctorque=torque, motor=motor)
-    over_worlds(world.substeps, (c, *contact_args, *joint_args, fx.bodies, fx.gravitation, fx.springs, fx.motors,
-                                 fx.damping, arrays), W)
+    Jt, J, T, layout, g = joint_args
+    over_worlds(world.substeps, (c, *contact_args, Jt, _model_arrays(model, J, T, layout), g, arrays), W)
     if rows is not None:
         rows.warm_starts = c.substeps
     if joints is not None:
         joints.finish_substeps(state, joint_args[0], c.substeps)
+
+
+def _model_arrays(model, J, T, layout):
+    """``engine.core.world.model_arrays`` of the model's joint, tree and
+    effect arrays, made once and kept on the model while they are the same
+    objects."""
+    fx = model.effect_arrays
+    key = (J, T, layout, fx)
+    kept = getattr(model, "_substep_model_arrays", None)
+    if kept is None or any(a is not b for a, b in zip(kept[0], key)):
+        kept = (key, world.model_arrays(T, layout, J, fx.bodies, fx.gravitation, fx.springs, fx.motors, fx.damping))
+        model._substep_model_arrays = kept
+    return kept[1]
 
 
 def _substeps(model, state, control, constraints, h, passive):

@@ -41,6 +41,8 @@ import math
 from typing import NamedTuple
 
 import numpy as np
+from numba.core import types
+from numba.experimental import structref
 
 from . import articulated as art
 from . import contacts as con
@@ -51,7 +53,7 @@ from .integrate import (
     runge_kutta4_world,
     semi_implicit_velocities,
 )
-from .jit import allocating_kernel, kernel
+from .jit import allocating_kernel, jit_disabled, kernel
 from .joint_rows import _add_load_world, _equality_world, _limits_world
 from .joints import _geometry_world, _inertia_world, _passive_world
 from .joints import _warm_start_world as _joint_warm_start
@@ -80,9 +82,10 @@ class StepConstants(NamedTuple):
 class ContactStep(NamedTuple):
     """The step's contact rows (``engine.contact_solver.ContactRows``) and
     their articulated part (``engine.articulated_contacts``), beside their
-    ``ContactRowArrays``, ``ContactView``, ``ArticulatedArrays``,
-    ``SolverParams`` and ``SoftParams`` (travelling as arguments of their
-    own: numba's compile time grows steeply with a tuple's fields)."""
+    ``ContactRowArrays``, ``ArticulatedArrays``, ``SolverParams`` and
+    ``SoftParams`` (travelling as arguments of their own: numba's compile
+    time grows steeply with a tuple's fields; the articulated solve's
+    ``ContactView`` of the rows is made inside the substeps)."""
 
     on: bool  # the step has rows
     order: np.ndarray  # (rows swept,) int64: the sweep order, world by world
@@ -154,6 +157,50 @@ class JointStep(NamedTuple):
     M_inv: np.ndarray  # (W, nb, 6, 6)
 
 
+_MODEL_FIELDS = ("T", "layout", "J", "bodies", "gravitation", "springs", "motors", "damping")
+
+
+@structref.register
+class _ModelArraysType(types.StructRef):
+    def preprocess_fields(self, fields):
+        return tuple((name, types.unliteral(t)) for name, t in fields)
+
+
+class _ModelArraysRef(structref.StructRefProxy):
+    pass
+
+
+structref.define_proxy(_ModelArraysRef, _ModelArraysType, list(_MODEL_FIELDS))
+
+
+class _ModelArraysTuple(NamedTuple):
+    T: tuple
+    layout: tuple
+    J: tuple
+    bodies: tuple
+    gravitation: tuple
+    springs: tuple
+    motors: tuple
+    damping: tuple
+
+
+def model_arrays(T, layout, J, bodies, gravitation, springs, motors, damping):
+    """The model's read-only arrays that the substeps take (``TreeRows``,
+    ``TreeLayout``, ``JointArrays`` and the effects' tuples) as one argument
+    with their fields: a numba structref, whose call dispatch costs one
+    pointer instead of a type check of each array (0.15 us each), made once
+    per model; a NamedTuple with the JIT disabled."""
+    make = _ModelArraysTuple if jit_disabled() else _new_model_arrays
+    return make(T, layout, J, bodies, gravitation, springs, motors, damping)
+
+
+@allocating_kernel
+def _new_model_arrays(T, layout, J, bodies, gravitation, springs, motors, damping):
+    """The structref of ``model_arrays``, made by a cached kernel (the
+    proxy's own constructor compiles in every process: a second)."""
+    return _ModelArraysRef(T, layout, J, bodies, gravitation, springs, motors, damping)
+
+
 class StateArrays(NamedTuple):
     """The state's and the control's arrays of W worlds."""
 
@@ -173,8 +220,7 @@ class StateArrays(NamedTuple):
 
 # ------------------------------------------------------------------ the worlds
 @allocating_kernel
-def substeps(c, C, R, view, AS, p, ap, Jt, J, T, layout, g, bodies, gravitation, springs, motors, damping, s,
-             first, stop):
+def substeps(c, C, R, AS, p, ap, Jt, mdl, g, s, first, stop):
     """Every substep of the steps of worlds first..stop-1, one world after
     the other, in place on the state ``s``. Batches run ranges of worlds on
     several threads (``jit.over_worlds``), not a ``prange``: numba's
@@ -184,7 +230,11 @@ def substeps(c, C, R, view, AS, p, ap, Jt, J, T, layout, g, bodies, gravitation,
     numba's compile time grows with each call site and function that passes
     these arguments on. The work buffers are allocated here, once a call,
     and the substeps themselves (``_substeps_of``) allocate nothing, so
-    they count no references to the arrays they index."""
+    they count no references to the arrays they index. mdl: ``model_arrays``."""
+    T, layout, J = mdl.T, mdl.layout, mdl.J
+    bodies, gravitation, springs, motors, damping = mdl.bodies, mdl.gravitation, mdl.springs, mdl.motors, mdl.damping
+    view = art.ContactView(R.a, R.b, R.n, R.xa0, R.xb0, R.ra, R.rb, R.la, R.lb, R.sep0, R.lam_n, R.lam_t1, R.lam_t2,
+                           R.max_lam_n, R.s_close, R.vn_close)
     n = s.x.shape[1]
     nj = Jt.tree_soft.shape[2]
     unit = np.zeros((3, nj))  # the relax solve's softness terms (0, 1, 0)
@@ -407,15 +457,8 @@ def contact_row_arrays(R):
         max_lam_n=e((R, 4)), s_close=e((R, 4)), vn_close=e((R, 4)))
 
 
-def no_articulated(contact_rows):
-    """(view, S, ap) of a step without articulated rows: the view of
-    ``contact_rows`` and no column."""
-    view = art.ContactView(*(getattr(contact_rows, f) for f in art.ContactView._fields))
-    return (view, *_no_columns())
-
-
 @functools.cache
-def _no_columns():
+def no_columns():
     """(S, ap) without an articulated column: arrays of size 0 (and the
     starts' single 0) that no kernel writes, made once."""
     z = np.zeros
@@ -433,21 +476,22 @@ def _no_columns():
 
 @functools.cache
 def no_contacts():
-    """The contact arguments (C, R, view, S, p, ap) of a step without
-    contact rows: arrays of size 0 that no kernel writes, made once."""
+    """The contact arguments (C, R, S, p, ap) of a step without contact
+    rows: arrays of size 0 that no kernel writes, made once."""
     R = contact_row_arrays(0)
-    view, S, ap = no_articulated(R)
+    S, ap = no_columns()
     i0 = np.zeros(0, dtype=np.int64)
     p = con.SolverParams(h=0.0, bias_rate=0.0, mass_scale=1.0, impulse_scale=0.0, max_push_out=0.0, slop=0.0,
                          load_cap=1.0, g_mag=0.0, bouncy=False, thesis=False)
     C = ContactStep(on=False, order=i0, world_start=np.zeros(1, dtype=np.int64), world_rows=i0,
                     row_start=np.zeros(1, dtype=np.int64), bouncy=False, lam_n_step=np.zeros((0, 4)),
                     lam_t1_step=np.zeros((0, 4)), lam_t2_step=np.zeros((0, 4)), articulated=False)
-    return C, R, view, S, p, ap
+    return C, R, S, p, ap
 
 
+@functools.cache
 def no_tree(num_bodies):
-    """(T, layout) of a scene without a joint tree."""
+    """(T, layout) of a scene without a joint tree (made once per body count)."""
     from .tree import TreeLayout
     from .tree_solve import TreeRows
 
@@ -460,14 +504,23 @@ def no_tree(num_bodies):
     return T, layout
 
 
+@functools.cache
+def _no_joint_arrays():
+    """``JointArrays`` of no joint (made once)."""
+    from .joints import JointArrays
+
+    i0 = np.zeros(0, dtype=np.int64)
+    return JointArrays(kind=i0, parent=i0, child=i0, frame_p=np.zeros((0, 4)), frame_c=np.zeros((0, 4)),
+                       anchor_p=np.zeros((0, 3)), anchor_c=np.zeros((0, 3)), cone=np.zeros((0, 2)))
+
+
 def no_joints(num_worlds, num_bodies, inv_mass, inv_inertia):
     """The joint arguments (Jt, J, T, layout, g) of a scene without joints."""
-    from .joints import JointArrays, empty_geometry
+    from .joints import empty_geometry
 
     W, N = num_worlds, num_bodies
     i0, b0, f0 = np.zeros(0, dtype=np.int64), np.zeros(0, dtype=bool), np.zeros(0)
-    J = JointArrays(kind=i0, parent=i0, child=i0, frame_p=np.zeros((0, 4)), frame_c=np.zeros((0, 4)),
-                    anchor_p=np.zeros((0, 3)), anchor_c=np.zeros((0, 3)), cone=np.zeros((0, 2)))
+    J = _no_joint_arrays()
     T, layout = no_tree(N)
     unit = np.array([0.0, 1.0, 0.0])
     Jt = JointStep(
