@@ -59,12 +59,10 @@ allocating_kernel = numba.njit(cache=True, fastmath=False, error_model="numpy", 
 #: ``kernel`` for a helper called only from other kernels, inlined into its
 #: callers by numba (``inline="always"``): no wrappers for calls from
 #: Python (for a helper taking many tuples of arrays they cost seconds of
-#: compile time each) and no call. A call to a compiled function counts a
-#: reference to each array it is passed, on entry and exit (two atomic
-#: operations each); an inlined helper still counts each array of a tuple
-#: it is passed, when the tuple is bound to its argument, so a helper
-#: called in a loop takes arrays, not tuples of them (or its code is
-#: written at its one call site).
+#: compile time each) and no call. Inside an ``allocating_kernel`` a call
+#: still counts a reference to each array it is passed, and an inlined
+#: helper each array of a tuple bound to its argument (two atomic
+#: operations each); inside a ``kernel`` nothing is counted.
 inlined_kernel = numba.njit(cache=True, fastmath=False, error_model="numpy", nogil=True, no_cpython_wrapper=True,
                             no_cfunc_wrapper=True, inline="always")
 parallel_kernel = numba.njit(cache=True, fastmath=False, error_model="numpy", nogil=True, parallel=True)

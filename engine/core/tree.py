@@ -69,9 +69,8 @@ class TreeLayout(NamedTuple):
 def inverse6_into(a, ia, out, o):
     """out[o] = a[ia]⁻¹ of a 6x6 matrix by Gauss-Jordan elimination with
     partial pivoting (the row with the largest |entry| of the column as
-    pivot); a[ia] is overwritten (blocks indexed, not taken as views: a view
-    passed to a call costs reference counts). A zero pivot (singular in floating point) fills out with
-    NaN; NaN entries propagate."""
+    pivot); a[ia] is overwritten. A zero pivot (singular in floating
+    point) fills out with NaN; NaN entries propagate."""
     for i in range(6):
         for j in range(6):
             out[o, i, j] = 0.0
@@ -182,9 +181,7 @@ def factor(layout, Ja, Jb, mask, M, M_inv, use_leaf_inv, ball_rows, Dinv, L, acc
     (kg, kg·m²) and, with ``use_leaf_inv``, M_inv its inverse (the leaf
     bodies' pivots); ``ball_rows``: the ball joints' angular rows are empty,
     so their pivots take the closed form. L of a root is 0. acc (n, 6, 6)
-    and work (1, 6, 6): the caller's scratch (see ``factor_scratch``).
-    Blocks are indexed, not taken as views (a view passed to a call costs
-    reference counts)."""
+    and work (1, 6, 6): the caller's scratch (see ``factor_scratch``)."""
     nb = layout.n_bodies
     n = layout.order.size
     # acc: Σ_children J_pᵀ D_j⁻¹ J_p of a body node, J_c D_c⁻¹ J_cᵀ of a joint node.
@@ -346,8 +343,7 @@ def walk_up(parent, Dinv, L, node, y, inject_at, inject, path, at, Y, Z, c):
     (y_parent = e_parent - L_nodeᵀ y_node). Walk c's: the path's nodes go to
     ``path[c]`` (n,), each node's place on it to ``at[c]`` (n,), which the
     walk first fills with -1, F⁻¹ e and D⁻¹ F⁻¹ e on it to Y[c] and Z[c]
-    (n, 6); y is overwritten. Returns the path's length. (Rows are indexed
-    in place, not taken as views.)"""
+    (n, 6); y is overwritten. Returns the path's length."""
     for i in range(at.shape[1]):
         at[c, i] = -1
     m = 0

@@ -337,8 +337,8 @@ def _substeps_of(c, C, R, view, AS, p, ap, Jt, J, T, layout, g, bodies, gravitat
                 # The solve: with its bias, each set's warm start, then the sweeps
                 # over the sets in their order; without, the relax sweeps and the
                 # free bodies' extra contact passes. (The sets' code is written here
-                # once, not in helpers: an inlined helper's tuple arguments cost two
-                # reference counts per array at every call.)
+                # once, not in helpers: numba's compile time grows with each function
+                # these tuples are passed on to.)
                 if use_bias:
                     for part in range(2):
                         if (part == 0) == c.contacts_first:
